@@ -1,0 +1,87 @@
+//! Particle layouts: lattices, jitter, bands, and volumes.
+
+use crate::neighbors::NeighborList;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+/// Cell-centred lattice points `lo + (k + ½) dx` with `k = 0, 1, …` covering the box
+/// `[lo, hi)` (the count per axis is `round((hi − lo) / dx)`), in lexicographic order
+/// (last axis fastest).
+pub fn lattice<const D: usize>(lo: [f64; D], hi: [f64; D], dx: f64) -> Vec<[f64; D]> {
+    let counts: [usize; D] =
+        std::array::from_fn(|a| ((hi[a] - lo[a]) / dx).round().max(0.0) as usize);
+    let total: usize = counts.iter().product();
+    let mut pts = Vec::with_capacity(total);
+    let mut idx = [0usize; D];
+    for _ in 0..total {
+        pts.push(std::array::from_fn(|a| lo[a] + (idx[a] as f64 + 0.5) * dx));
+        for a in (0..D).rev() {
+            idx[a] += 1;
+            if idx[a] < counts[a] {
+                break;
+            }
+            idx[a] = 0;
+        }
+    }
+    pts
+}
+
+/// Moves every point by an independent uniform offset in `[−amp, amp]^D` (seeded, reproducible).
+pub fn jitter<const D: usize>(pts: &mut [[f64; D]], amp: f64, seed: u64) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    for p in pts.iter_mut() {
+        for c in p.iter_mut() {
+            *c += amp * (2.0 * rng.random::<f64>() - 1.0);
+        }
+    }
+}
+
+/// True when `x` lies in the open box `(lo, hi)`.
+pub fn inside<const D: usize>(x: &[f64; D], lo: &[f64; D], hi: &[f64; D]) -> bool {
+    (0..D).all(|a| x[a] > lo[a] && x[a] < hi[a])
+}
+
+/// Volumes `ω_i = 1 / Σ_{j≠i} w_h(r_ij)` (MISSION §2): on a uniform distribution this makes the
+/// consistency factor `S_i = Σ_{j≠i} ω_j w_h(r_ij)` equal to one, so that `∇h`, `∇̂h·` and `Δh`
+/// approximate the derivatives themselves rather than `S` times them.
+pub fn number_density_volumes<const D: usize>(nl: &NeighborList<D>) -> Vec<f64> {
+    (0..nl.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let s: f64 = nl.row(i).map(|k| nl.w[k]).sum();
+            if s > 0.0 {
+                1.0 / s
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect()
+}
+
+/// `Σ_{j≠i} w_h(r_ij)` on an infinite cell-centred lattice of spacing `dx`: the constant behind
+/// [`number_density_volumes`] for particles whose neighbourhood is a full lattice.
+pub fn lattice_weight_sum<const D: usize>(kernel: &crate::kernel::Kernel<D>, dx: f64) -> f64 {
+    let m = (kernel.h() / dx).ceil() as i64 + 1;
+    let mut s = 0.0;
+    let mut idx = [-m; D];
+    loop {
+        if idx.iter().any(|&k| k != 0) {
+            let r2: f64 = idx.iter().map(|&k| (k as f64 * dx).powi(2)).sum();
+            s += kernel.w_h(r2.sqrt());
+        }
+        let mut a = D;
+        loop {
+            if a == 0 {
+                return s;
+            }
+            a -= 1;
+            idx[a] += 1;
+            if idx[a] <= m {
+                break;
+            }
+            idx[a] = -m;
+        }
+    }
+}

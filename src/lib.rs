@@ -1,0 +1,17 @@
+//! # gpm — incompressible particle fluids with the generalized particle method
+//!
+//! (crate documentation is completed with the projection step)
+
+#![warn(missing_docs)]
+
+pub mod diagnostics;
+pub mod error;
+pub mod geometry;
+pub mod kernel;
+pub mod math;
+pub mod neighbors;
+pub mod operators;
+pub mod particles;
+pub mod poisson;
+
+pub use error::{Error, Result};

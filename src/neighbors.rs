@@ -1,0 +1,523 @@
+//! Fixed-radius neighbour lists: one flat (CSR) list with cached pair data, read by every
+//! operator, the Poisson assembly and the diagnostics.
+//!
+//! The list holds, for each particle `i`, the particles `j ≠ i` with `r_ij < h` (strict, as the
+//! paper's sums), the displacement `x_j − x_i` (minimum image on periodic axes), `r_ij²`,
+//! `w_h(r_ij)` and `w_h(r_ij)/r_ij²`.
+//!
+//! Candidates within `h + skin` are found with a kiddo k-d tree and kept while no particle has
+//! moved more than `skin / 2` since they were found; in between, [`NeighborList::update`] only
+//! re-measures the candidate pairs. The candidate list is also the sparsity pattern of the
+//! Poisson matrix, so the pattern (and the symbolic factorisation built on it) survives as long as
+//! the candidates do; [`NeighborList::epoch`] changes exactly when they are rebuilt.
+//! [`NeighborList::brute_force`] is the O(N²) reference kept for tests.
+
+use crate::error::InputError;
+use crate::kernel::{Kernel, Weight};
+use crate::math::{is_finite, norm2};
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+/// Periodic axes of the domain: axis `k` is periodic with period `len[k]` when `len[k] > 0`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Periodicity<const D: usize> {
+    /// Lower corner of the periodic box.
+    pub lo: [f64; D],
+    /// Period per axis; `0` means not periodic.
+    pub len: [f64; D],
+}
+
+impl<const D: usize> Default for Periodicity<D> {
+    fn default() -> Self {
+        Self::none()
+    }
+}
+
+impl<const D: usize> Periodicity<D> {
+    /// No periodic axis.
+    pub fn none() -> Self {
+        Periodicity {
+            lo: [0.0; D],
+            len: [0.0; D],
+        }
+    }
+    /// Every axis periodic on the box `[lo, lo + len)`.
+    pub fn all(lo: [f64; D], len: [f64; D]) -> Self {
+        Periodicity { lo, len }
+    }
+    /// True when some axis is periodic.
+    pub fn any(&self) -> bool {
+        self.len.iter().any(|&l| l > 0.0)
+    }
+    /// Replaces a displacement by its minimum image.
+    #[inline(always)]
+    pub fn min_image(&self, dx: &mut [f64; D]) {
+        for k in 0..D {
+            let l = self.len[k];
+            if l > 0.0 {
+                dx[k] -= l * (dx[k] / l).round();
+            }
+        }
+    }
+    /// Maps a position into the periodic box.
+    #[inline]
+    pub fn wrap(&self, x: &mut [f64; D]) {
+        for k in 0..D {
+            let l = self.len[k];
+            if l > 0.0 {
+                let mut y = self.lo[k] + (x[k] - self.lo[k]).rem_euclid(l);
+                if y >= self.lo[k] + l {
+                    y = self.lo[k];
+                }
+                x[k] = y;
+            }
+        }
+    }
+}
+
+/// What a neighbour list is built with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NeighborConfig<const D: usize> {
+    /// Influence radius `h` (distance units).
+    pub h: f64,
+    /// Skin (distance units): candidates are searched within `h + skin` and kept while every
+    /// particle moves less than `skin / 2`. Zero rebuilds at every update.
+    pub skin: f64,
+    /// Reference weight.
+    pub weight: Weight,
+    /// Periodic axes.
+    pub periodic: Periodicity<D>,
+}
+
+impl<const D: usize> NeighborConfig<D> {
+    /// `h` and `skin` given in distance units.
+    pub fn new(weight: Weight, h: f64, skin: f64) -> Self {
+        NeighborConfig {
+            h,
+            skin,
+            weight,
+            periodic: Periodicity::none(),
+        }
+    }
+    /// `h = h_over_dx · dx` and `skin = skin_over_h · h`, relative to the particle spacing `dx`.
+    pub fn new_relative(weight: Weight, dx: f64, h_over_dx: f64, skin_over_h: f64) -> Self {
+        let h = h_over_dx * dx;
+        Self::new(weight, h, skin_over_h * h)
+    }
+    /// With periodic axes.
+    pub fn with_periodicity(mut self, periodic: Periodicity<D>) -> Self {
+        self.periodic = periodic;
+        self
+    }
+    /// Checks `h > 0`, `skin ≥ 0`, the weight, and periods of at least `2 (h + skin)`.
+    pub fn validate(&self) -> Result<(), InputError> {
+        if !(self.h > 0.0) || !self.h.is_finite() {
+            return Err(InputError::Parameter {
+                name: "h",
+                value: self.h,
+                reason: "the influence radius must be positive and finite".into(),
+            });
+        }
+        if !(self.skin >= 0.0) || !self.skin.is_finite() {
+            return Err(InputError::Parameter {
+                name: "skin",
+                value: self.skin,
+                reason: "the skin must be non-negative and finite".into(),
+            });
+        }
+        if let Err(reason) = self.weight.validate() {
+            return Err(InputError::Parameter {
+                name: "weight",
+                value: f64::NAN,
+                reason,
+            });
+        }
+        let needed = 2.0 * (self.h + self.skin);
+        for k in 0..D {
+            let l = self.periodic.len[k];
+            if l.is_nan() || l < 0.0 || (l > 0.0 && l < needed) {
+                return Err(InputError::PeriodTooShort {
+                    axis: k,
+                    period: l,
+                    needed,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What an update did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NeighborUpdate {
+    /// True when the candidates (and so the pattern and epoch) were rebuilt.
+    pub rebuilt: bool,
+}
+
+/// The flat neighbour list with cached pair data. See the module documentation.
+#[derive(Clone, Debug)]
+pub struct NeighborList<const D: usize> {
+    config: NeighborConfig<D>,
+    kernel: Kernel<D>,
+    /// Row `i` of the pair arrays is `offsets[i]..offsets[i + 1]`.
+    pub offsets: Vec<usize>,
+    /// Neighbour index `j` of each pair (ascending within a row).
+    pub indices: Vec<u32>,
+    /// `x_j − x_i` (minimum image).
+    pub dx: Vec<[f64; D]>,
+    /// `r_ij²`.
+    pub r2: Vec<f64>,
+    /// `w_h(r_ij)`.
+    pub w: Vec<f64>,
+    /// `w_h(r_ij) / r_ij²`: the factor every operator multiplies by.
+    pub wr2: Vec<f64>,
+    cand_offsets: Vec<usize>,
+    cand_indices: Vec<u32>,
+    x_ref: Vec<[f64; D]>,
+    epoch: u64,
+    rebuilds: u64,
+}
+
+impl<const D: usize> NeighborList<D> {
+    /// An empty list; call [`update`](Self::update) to fill it.
+    pub fn new(config: NeighborConfig<D>) -> Result<Self, InputError> {
+        config.validate()?;
+        Ok(NeighborList {
+            kernel: Kernel::new(config.weight, config.h),
+            config,
+            offsets: vec![0],
+            indices: Vec::new(),
+            dx: Vec::new(),
+            r2: Vec::new(),
+            w: Vec::new(),
+            wr2: Vec::new(),
+            cand_offsets: vec![0],
+            cand_indices: Vec::new(),
+            x_ref: Vec::new(),
+            epoch: 0,
+            rebuilds: 0,
+        })
+    }
+
+    /// Builds a list for `x` in one call (search + measurement).
+    pub fn build(config: NeighborConfig<D>, x: &[[f64; D]]) -> Result<Self, InputError> {
+        let mut nl = Self::new(config)?;
+        nl.update(x)?;
+        Ok(nl)
+    }
+
+    /// The reference implementation: every pair tested, O(N²). Pairs at exactly `h` are excluded.
+    pub fn brute_force(config: NeighborConfig<D>, x: &[[f64; D]]) -> Result<Self, InputError> {
+        let mut nl = Self::new(config)?;
+        check_finite(x)?;
+        let h2 = config.h * config.h;
+        let mut offsets = vec![0usize];
+        let mut indices = Vec::new();
+        for i in 0..x.len() {
+            for j in 0..x.len() {
+                if j == i {
+                    continue;
+                }
+                let mut d: [f64; D] = std::array::from_fn(|k| x[j][k] - x[i][k]);
+                config.periodic.min_image(&mut d);
+                if norm2(&d) < h2 {
+                    indices.push(j as u32);
+                }
+            }
+            offsets.push(indices.len());
+        }
+        nl.cand_offsets = offsets;
+        nl.cand_indices = indices;
+        nl.x_ref = x.to_vec();
+        nl.epoch = 1;
+        nl.rebuilds = 1;
+        nl.measure(x)?;
+        Ok(nl)
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &NeighborConfig<D> {
+        &self.config
+    }
+    /// The kernel `w_h`.
+    pub fn kernel(&self) -> &Kernel<D> {
+        &self.kernel
+    }
+    /// Influence radius.
+    pub fn h(&self) -> f64 {
+        self.config.h
+    }
+    /// Number of particles (rows).
+    pub fn len(&self) -> usize {
+        self.offsets.len() - 1
+    }
+    /// True when there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// Number of stored pairs (each unordered pair is stored twice).
+    pub fn n_pairs(&self) -> usize {
+        self.indices.len()
+    }
+    /// Row `i`'s pair range.
+    #[inline(always)]
+    pub fn row(&self, i: usize) -> std::ops::Range<usize> {
+        self.offsets[i]..self.offsets[i + 1]
+    }
+    /// Changes exactly when the candidate list (the sparsity pattern) is rebuilt.
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+    /// How many times the candidates were searched.
+    pub fn rebuilds(&self) -> u64 {
+        self.rebuilds
+    }
+    /// Candidate pattern (pairs within `h + skin` at the last rebuild): offsets and indices.
+    pub fn pattern(&self) -> (&[usize], &[u32]) {
+        (&self.cand_offsets, &self.cand_indices)
+    }
+
+    /// Forgets the candidates so that the next update searches again.
+    pub fn invalidate(&mut self) {
+        self.x_ref.clear();
+    }
+
+    /// True when the candidates no longer cover every pair within `h` of `x`.
+    pub fn needs_rebuild(&self, x: &[[f64; D]]) -> bool {
+        if self.x_ref.len() != x.len() || self.epoch == 0 {
+            return true;
+        }
+        let lim2 = 0.25 * self.config.skin * self.config.skin;
+        let per = self.config.periodic;
+        x.par_iter().zip(self.x_ref.par_iter()).any(|(a, b)| {
+            let mut d: [f64; D] = std::array::from_fn(|k| a[k] - b[k]);
+            per.min_image(&mut d);
+            !(norm2(&d) < lim2) // also true for NaN
+        })
+    }
+
+    /// Brings the list up to date with positions `x`: searches again only when needed, then
+    /// re-measures every candidate pair. Fails on non-finite positions and coincident particles.
+    pub fn update(&mut self, x: &[[f64; D]]) -> Result<NeighborUpdate, InputError> {
+        check_finite(x)?;
+        let rebuilt = self.needs_rebuild(x);
+        if rebuilt {
+            self.search(x)?;
+        }
+        self.measure(x)?;
+        Ok(NeighborUpdate { rebuilt })
+    }
+
+    /// Candidate search with kiddo within `h + skin`.
+    fn search(&mut self, x: &[[f64; D]]) -> Result<(), InputError> {
+        let n = x.len();
+        let per = self.config.periodic;
+        let radius = self.config.h + self.config.skin;
+        let r2 = radius * radius;
+        let xw: Vec<[f64; D]> = x
+            .par_iter()
+            .map(|p| {
+                let mut q = *p;
+                per.wrap(&mut q);
+                q
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(n + 1);
+        offsets.push(0usize);
+        let mut indices: Vec<u32> = Vec::new();
+        if n > 0 {
+            let tree: ImmutableKdTree<f64, D> =
+                ImmutableKdTree::new_from_slice(&xw).map_err(|e| InputError::Parameter {
+                    name: "positions",
+                    value: n as f64,
+                    reason: format!("k-d tree construction failed: {e:?}"),
+                })?;
+            const CHUNK: usize = 1024;
+            let parts: Vec<(Vec<u32>, Vec<u32>)> = (0..n)
+                .into_par_iter()
+                .step_by(CHUNK)
+                .map(|start| {
+                    let end = (start + CHUNK).min(n);
+                    let mut scratch = tree.create_scratch::<SquaredEuclidean<f64>>();
+                    let mut counts = Vec::with_capacity(end - start);
+                    let mut idx = Vec::with_capacity((end - start) * 32);
+                    let mut row: Vec<u32> = Vec::with_capacity(64);
+                    for i in start..end {
+                        row.clear();
+                        for shift in image_shifts(&xw[i], &per, radius) {
+                            let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
+                            tree.query(&q)
+                                .within::<SquaredEuclidean<f64>>(r2)
+                                .unsorted()
+                                .with_scratch(&mut scratch)
+                                .visit(|nb| {
+                                    let j = nb.item;
+                                    if j as usize != i {
+                                        row.push(j);
+                                    }
+                                });
+                        }
+                        row.sort_unstable();
+                        row.dedup();
+                        counts.push(row.len() as u32);
+                        idx.extend_from_slice(&row);
+                    }
+                    (counts, idx)
+                })
+                .collect();
+            indices.reserve(parts.iter().map(|p| p.1.len()).sum());
+            for (counts, idx) in parts {
+                for c in counts {
+                    let last = *offsets.last().unwrap();
+                    offsets.push(last + c as usize);
+                }
+                indices.extend_from_slice(&idx);
+            }
+        }
+        self.cand_offsets = offsets;
+        self.cand_indices = indices;
+        self.x_ref = x.to_vec();
+        self.epoch += 1;
+        self.rebuilds += 1;
+        Ok(())
+    }
+
+    /// Re-measures the candidate pairs at positions `x` and keeps those with `r < h`.
+    fn measure(&mut self, x: &[[f64; D]]) -> Result<(), InputError> {
+        let n = x.len();
+        let h2 = self.config.h * self.config.h;
+        let per = self.config.periodic;
+        let co = &self.cand_offsets;
+        let ci = &self.cand_indices;
+        let disp = |i: usize, j: usize| -> [f64; D] {
+            let mut d: [f64; D] = std::array::from_fn(|k| x[j][k] - x[i][k]);
+            per.min_image(&mut d);
+            d
+        };
+        // pass 1: counts
+        let counts: Vec<usize> = (0..n)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|i| {
+                ci[co[i]..co[i + 1]]
+                    .iter()
+                    .filter(|&&j| norm2(&disp(i, j as usize)) < h2)
+                    .count()
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(n + 1);
+        offsets.push(0usize);
+        for c in &counts {
+            offsets.push(offsets.last().unwrap() + c);
+        }
+        let m = *offsets.last().unwrap();
+        self.indices.resize(m, 0);
+        self.dx.resize(m, [0.0; D]);
+        self.r2.resize(m, 0.0);
+        self.w.resize(m, 0.0);
+        self.wr2.resize(m, 0.0);
+        // pass 2: fill, chunk by chunk of rows (each chunk owns a contiguous output range)
+        const CHUNK: usize = 512;
+        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
+            .map(|c| offsets[(c * CHUNK).min(n)])
+            .collect();
+        let kernel = self.kernel;
+        let idx_parts = split_by(&mut self.indices, &bounds);
+        let dx_parts = split_by(&mut self.dx, &bounds);
+        let r2_parts = split_by(&mut self.r2, &bounds);
+        let w_parts = split_by(&mut self.w, &bounds);
+        let wr2_parts = split_by(&mut self.wr2, &bounds);
+        let coincident = idx_parts
+            .into_par_iter()
+            .zip(dx_parts)
+            .zip(r2_parts)
+            .zip(w_parts)
+            .zip(wr2_parts)
+            .enumerate()
+            .map(|(c, ((((idx, dxo), r2o), wo), wr2o))| {
+                let mut k = 0;
+                let mut bad = None;
+                for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                    for &j in &ci[co[i]..co[i + 1]] {
+                        let d = disp(i, j as usize);
+                        let rr = norm2(&d);
+                        if rr < h2 {
+                            if !(rr > 0.0) && bad.is_none() {
+                                bad = Some((i, j as usize));
+                            }
+                            idx[k] = j;
+                            dxo[k] = d;
+                            r2o[k] = rr;
+                            let wv = kernel.w_h(rr.sqrt());
+                            wo[k] = wv;
+                            wr2o[k] = if rr > 0.0 { wv / rr } else { f64::INFINITY };
+                            k += 1;
+                        }
+                    }
+                }
+                bad
+            })
+            .reduce(|| None, |a, b| a.or(b));
+        self.offsets = offsets;
+        if let Some((i, j)) = coincident {
+            return Err(InputError::Coincident {
+                i,
+                j,
+                distance: 0.0,
+            });
+        }
+        Ok(())
+    }
+}
+
+fn check_finite<const D: usize>(x: &[[f64; D]]) -> Result<(), InputError> {
+    if let Some(i) = x.par_iter().position_first(|p| !is_finite(p)) {
+        return Err(InputError::NonFinite {
+            field: "position",
+            particle: i,
+        });
+    }
+    Ok(())
+}
+
+/// The periodic image shifts under which a ball of `radius` around `x` (already wrapped) can
+/// reach across the box: always the zero shift, plus `±len` on axes where `x` is within `radius`
+/// of a face, in every combination.
+fn image_shifts<const D: usize>(x: &[f64; D], per: &Periodicity<D>, radius: f64) -> Vec<[f64; D]> {
+    let mut shifts = vec![[0.0; D]];
+    for k in 0..D {
+        let l = per.len[k];
+        if l <= 0.0 {
+            continue;
+        }
+        let mut extra = Vec::new();
+        if x[k] - per.lo[k] < radius {
+            extra.push(l);
+        }
+        if per.lo[k] + l - x[k] < radius {
+            extra.push(-l);
+        }
+        let base = shifts.clone();
+        for e in extra {
+            for s in &base {
+                let mut t = *s;
+                t[k] = e;
+                shifts.push(t);
+            }
+        }
+    }
+    shifts
+}
+
+/// Splits `v` into consecutive mutable pieces `v[bounds[c]..bounds[c + 1]]`.
+pub(crate) fn split_by<'a, T>(mut v: &'a mut [T], bounds: &[usize]) -> Vec<&'a mut [T]> {
+    let mut parts = Vec::with_capacity(bounds.len().saturating_sub(1));
+    let mut at = bounds.first().copied().unwrap_or(0);
+    for &b in &bounds[1..] {
+        let (head, tail) = std::mem::take(&mut v).split_at_mut(b - at);
+        parts.push(head);
+        v = tail;
+        at = b;
+    }
+    parts
+}

@@ -1,0 +1,153 @@
+//! Particle state owned by the caller: positions, velocities, pressures, volumes and roles.
+//!
+//! Structure of arrays over `[f64; D]`. Nothing here is solver scratch: the projection step keeps
+//! its own working memory ([`crate::projection::ProjectionStep`]), so the same `Particles` can be
+//! handed to the projection from any particle loop.
+
+use crate::error::InputError;
+use crate::math::is_finite;
+
+/// What a particle is for the discrete Poisson problem and the operators.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// A particle of `Ω`: its velocity evolves and its pressure is an unknown of the Poisson problem.
+    Fluid,
+    /// A particle of the band `Γ_H` with prescribed pressure (increment) zero: the paper's
+    /// Dirichlet band, used for free surfaces and open boundaries. Its velocity is given data.
+    Dirichlet,
+    /// A mirror image of the fluid particle `source` across the walls in the bit set `walls`
+    /// (bit `k` = wall `k` of [`crate::boundary::Walls`]). All its fields are derived from the
+    /// source: scalars are copied (Neumann), vectors follow the wall rule.
+    Ghost {
+        /// Index of the fluid particle this ghost mirrors.
+        source: u32,
+        /// Bit set of the walls it is reflected across (one bit: a wall image; two: a corner).
+        walls: u8,
+    },
+}
+
+impl Role {
+    /// True for [`Role::Fluid`].
+    #[inline]
+    pub fn is_fluid(&self) -> bool {
+        matches!(self, Role::Fluid)
+    }
+}
+
+/// The particle state of a run.
+#[derive(Clone, Debug, Default)]
+pub struct Particles<const D: usize> {
+    /// Positions `x_i`.
+    pub x: Vec<[f64; D]>,
+    /// Velocities `u_i`.
+    pub u: Vec<[f64; D]>,
+    /// Pressures `p_i`.
+    pub p: Vec<f64>,
+    /// Volumes `ω_i > 0`.
+    pub vol: Vec<f64>,
+    /// Roles.
+    pub role: Vec<Role>,
+}
+
+impl<const D: usize> Particles<D> {
+    /// No particles.
+    pub fn new() -> Self {
+        Particles {
+            x: Vec::new(),
+            u: Vec::new(),
+            p: Vec::new(),
+            vol: Vec::new(),
+            role: Vec::new(),
+        }
+    }
+
+    /// Number of particles (all roles).
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// True when there are no particles.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Appends one particle.
+    pub fn push(&mut self, x: [f64; D], u: [f64; D], p: f64, vol: f64, role: Role) {
+        self.x.push(x);
+        self.u.push(u);
+        self.p.push(p);
+        self.vol.push(vol);
+        self.role.push(role);
+    }
+
+    /// Removes every particle from index `n` on (used to drop and regenerate ghosts).
+    pub fn truncate(&mut self, n: usize) {
+        self.x.truncate(n);
+        self.u.truncate(n);
+        self.p.truncate(n);
+        self.vol.truncate(n);
+        self.role.truncate(n);
+    }
+
+    /// Number of fluid particles.
+    pub fn n_fluid(&self) -> usize {
+        self.role.iter().filter(|r| r.is_fluid()).count()
+    }
+
+    /// Checks that the arrays agree in length, that positions, velocities, pressures and volumes
+    /// are finite, that volumes are positive and that every ghost mirrors a fluid particle.
+    /// The error names the first offending particle.
+    pub fn validate(&self) -> Result<(), InputError> {
+        let n = self.x.len();
+        for (name, len) in [
+            ("u", self.u.len()),
+            ("p", self.p.len()),
+            ("vol", self.vol.len()),
+            ("role", self.role.len()),
+        ] {
+            if len != n {
+                return Err(InputError::LengthMismatch {
+                    field: name,
+                    len,
+                    expected: n,
+                });
+            }
+        }
+        for i in 0..n {
+            if !is_finite(&self.x[i]) {
+                return Err(InputError::NonFinite {
+                    field: "position",
+                    particle: i,
+                });
+            }
+            if !is_finite(&self.u[i]) {
+                return Err(InputError::NonFinite {
+                    field: "velocity",
+                    particle: i,
+                });
+            }
+            if !self.p[i].is_finite() {
+                return Err(InputError::NonFinite {
+                    field: "pressure",
+                    particle: i,
+                });
+            }
+            if !(self.vol[i] > 0.0) || !self.vol[i].is_finite() {
+                return Err(InputError::BadVolume {
+                    particle: i,
+                    value: self.vol[i],
+                });
+            }
+            if let Role::Ghost { source, .. } = self.role[i] {
+                let s = source as usize;
+                if s >= n || !self.role[s].is_fluid() {
+                    return Err(InputError::BadGhostSource {
+                        particle: i,
+                        source_particle: s,
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,199 @@
+//! Assembly of the symmetric Poisson matrix from the neighbour list.
+//!
+//! Row `i` of `−Δh u = b` multiplied by `ω_i` (Imoto 2019, proof of Thm 4.1) gives the symmetric
+//! system `K u = ω∘b` with, for unknowns `i ≠ j`,
+//! `K_ij = −Σ ω_i ω_j a_ij` and `K_ii = ω_i Σ_{k≠i} ω_k a_ik`, `a_ij = 2d w_h(r_ij)/r_ij²`,
+//! where `k` runs over every neighbour (Dirichlet ones included) and a ghost image of the fluid
+//! particle `j` adds to the entry of `j` (a mirror image keeps `K` symmetric: `|x_i − R x_j| =
+//! |x_j − R x_i|` for a reflection `R`). Pairs of a particle with its own image cancel.
+//!
+//! The pattern is built from the neighbour list's candidate pairs (within `h + skin`), so it is
+//! the same for every step until the candidates are rebuilt: the numeric values of pairs that
+//! are candidates but currently farther than `h` are zero.
+
+use crate::diagnostics::alias;
+use crate::error::SolveError;
+use crate::neighbors::{split_by, NeighborList};
+use crate::particles::Role;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// The assembled matrix `K` over the fluid unknowns, in full symmetric CSR form.
+#[derive(Clone, Debug, Default)]
+pub struct Assembly {
+    key: Option<(u64, u64)>,
+    pattern_id: u64,
+    /// Unknown index of each particle (`u32::MAX` when the particle is not an unknown).
+    pub unknown: Vec<u32>,
+    /// Particle index of each unknown.
+    pub particle: Vec<u32>,
+    /// Row `u` is `offsets[u]..offsets[u + 1]`.
+    pub offsets: Vec<usize>,
+    /// Column (unknown) of each entry, ascending within a row.
+    pub cols: Vec<u32>,
+    /// Position of the diagonal entry of each row.
+    pub diag: Vec<usize>,
+    /// Values.
+    pub values: Vec<f64>,
+}
+
+fn role_hash(role: &[Role]) -> u64 {
+    // FNV-1a over the role tags and ghost sources
+    let mut h: u64 = 0xcbf29ce484222325;
+    let mut eat = |v: u64| {
+        h ^= v;
+        h = h.wrapping_mul(0x100000001b3);
+    };
+    eat(role.len() as u64);
+    for r in role {
+        match *r {
+            Role::Fluid => eat(1),
+            Role::Dirichlet => eat(2),
+            Role::Ghost { source, .. } => eat(3 | ((source as u64) << 8)),
+        }
+    }
+    h
+}
+
+impl Assembly {
+    /// Number of unknowns.
+    pub fn n(&self) -> usize {
+        self.particle.len()
+    }
+    /// Stored entries of the full symmetric matrix.
+    pub fn nnz(&self) -> usize {
+        self.cols.len()
+    }
+    /// Changes whenever the sparsity pattern changes.
+    pub fn pattern_id(&self) -> u64 {
+        self.pattern_id
+    }
+
+    /// Rebuilds the pattern when the candidate pairs or the roles changed; returns true if it did.
+    pub fn update_pattern<const D: usize>(&mut self, nl: &NeighborList<D>, role: &[Role]) -> bool {
+        let key = (nl.epoch(), role_hash(role));
+        if self.key == Some(key) && self.unknown.len() == role.len() {
+            return false;
+        }
+        let n = role.len();
+        self.unknown = vec![u32::MAX; n];
+        self.particle.clear();
+        for (i, r) in role.iter().enumerate() {
+            if r.is_fluid() {
+                self.unknown[i] = self.particle.len() as u32;
+                self.particle.push(i as u32);
+            }
+        }
+        let (co, ci) = nl.pattern();
+        let unknown = &self.unknown;
+        let rows: Vec<Vec<u32>> = self
+            .particle
+            .par_iter()
+            .with_min_len(256)
+            .map(|&p| {
+                let p = p as usize;
+                let mut cols: Vec<u32> = ci[co[p]..co[p + 1]]
+                    .iter()
+                    .filter_map(|&j| alias(role, j as usize))
+                    .filter(|&s| s != p)
+                    .map(|s| unknown[s])
+                    .collect();
+                cols.push(unknown[p]);
+                cols.sort_unstable();
+                cols.dedup();
+                cols
+            })
+            .collect();
+        self.offsets = Vec::with_capacity(rows.len() + 1);
+        self.offsets.push(0);
+        self.cols.clear();
+        self.diag.clear();
+        for (u, r) in rows.iter().enumerate() {
+            let base = self.cols.len();
+            let pos = r.binary_search(&(u as u32)).expect("diagonal in pattern");
+            self.diag.push(base + pos);
+            self.cols.extend_from_slice(r);
+            self.offsets.push(self.cols.len());
+        }
+        self.values = vec![0.0; self.cols.len()];
+        self.key = Some(key);
+        self.pattern_id += 1;
+        true
+    }
+
+    /// Fills the values of `K` for the current pair data (pattern must be up to date).
+    pub fn fill_values<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+    ) -> Result<(), SolveError> {
+        let two_d = 2.0 * D as f64;
+        let missing = AtomicBool::new(false);
+        let n = self.n();
+        const CHUNK: usize = 256;
+        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
+            .map(|c| self.offsets[(c * CHUNK).min(n)])
+            .collect();
+        let parts = split_by(&mut self.values, &bounds);
+        let (offsets, cols, diag, particle, unknown) = (
+            &self.offsets,
+            &self.cols,
+            &self.diag,
+            &self.particle,
+            &self.unknown,
+        );
+        parts.into_par_iter().enumerate().for_each(|(c, vals)| {
+            let base = offsets[(c * CHUNK).min(n)];
+            vals.fill(0.0);
+            for u in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let p = particle[u] as usize;
+                let row = &cols[offsets[u]..offsets[u + 1]];
+                let mut dsum = 0.0;
+                for k in nl.row(p) {
+                    let j = nl.indices[k] as usize;
+                    let s = alias(role, j);
+                    if s == Some(p) {
+                        continue;
+                    }
+                    let a = two_d * vol[p] * vol[j] * nl.wr2[k];
+                    dsum += a;
+                    if let Some(s) = s {
+                        match row.binary_search(&unknown[s]) {
+                            Ok(pos) => vals[offsets[u] - base + pos] -= a,
+                            Err(_) => missing.store(true, Ordering::Relaxed),
+                        }
+                    }
+                }
+                vals[diag[u] - base] += dsum;
+            }
+        });
+        if missing.load(Ordering::Relaxed) {
+            return Err(SolveError::Backend(
+                "a neighbour pair is missing from the matrix pattern (roles or positions \
+                 changed without a neighbour-list update)"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `y = K x`.
+    pub fn spmv(&self, x: &[f64], y: &mut [f64]) {
+        y.par_iter_mut()
+            .with_min_len(1024)
+            .enumerate()
+            .for_each(|(u, yu)| {
+                let mut s = 0.0;
+                for k in self.offsets[u]..self.offsets[u + 1] {
+                    s += self.values[k] * x[self.cols[k] as usize];
+                }
+                *yu = s;
+            });
+    }
+
+    /// The diagonal of `K`.
+    pub fn diagonal(&self) -> Vec<f64> {
+        self.diag.iter().map(|&k| self.values[k]).collect()
+    }
+}
