@@ -63,6 +63,42 @@ impl Weight {
         }
     }
 
+    /// The derivative `f'(r)` of the unnormalised shape.
+    #[inline]
+    pub fn dshape(&self, r: f64) -> f64 {
+        if !(r < 1.0) {
+            return 0.0;
+        }
+        match *self {
+            Weight::CubicSpline => {
+                if r < 0.5 {
+                    -12.0 * r + 18.0 * r * r
+                } else {
+                    let s = 1.0 - r;
+                    -6.0 * s * s
+                }
+            }
+            Weight::WendlandC2 => {
+                let s = 1.0 - r;
+                -20.0 * r * s * s * s
+            }
+            Weight::WendlandC4 => {
+                let s = 1.0 - r;
+                let s5 = s * s * s * s * s;
+                -(56.0 / 3.0) * r * (1.0 + 5.0 * r) * s5
+            }
+            Weight::Poly { p, m } => {
+                let (p, m) = (p as i32, m as i32);
+                let a = if p > 0 {
+                    p as f64 * r.powi(p - 1) * (1.0 - r).powi(m)
+                } else {
+                    0.0
+                };
+                a - m as f64 * r.powi(p) * (1.0 - r).powi(m - 1)
+            }
+        }
+    }
+
     /// `1 / ∫_{ℝ^d} f(|x|) dx`, from closed forms (checked against quadrature in the tests).
     pub fn normalisation(&self, d: usize) -> f64 {
         assert!(d == 2 || d == 3, "dimension must be 2 or 3");
@@ -176,6 +212,11 @@ impl<const D: usize> Kernel<D> {
     #[inline]
     pub fn w_h(&self, r: f64) -> f64 {
         self.scale * self.weight.shape(r / self.h)
+    }
+    /// `dw_h/dr (r)`.
+    #[inline]
+    pub fn dw_h(&self, r: f64) -> f64 {
+        self.scale * self.weight.dshape(r / self.h) / self.h
     }
     /// The normalised reference weight `w(q)` in dimension `D` (support radius 1).
     #[inline]

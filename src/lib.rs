@@ -4,8 +4,10 @@
 
 #![warn(missing_docs)]
 
+pub mod boundary;
 pub mod diagnostics;
 pub mod error;
+pub mod flow;
 pub mod geometry;
 pub mod kernel;
 pub mod math;
@@ -13,5 +15,9 @@ pub mod neighbors;
 pub mod operators;
 pub mod particles;
 pub mod poisson;
+pub mod projection;
+pub mod reference;
+pub mod sampling;
+pub mod scene;
 
 pub use error::{Error, Result};

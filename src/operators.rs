@@ -51,6 +51,34 @@ pub fn div_sum_into<const D: usize>(
         });
 }
 
+/// Difference-form divergence `d Σ ω_j (ψ_j − ψ_i)·(x_j − x_i) a'_ij` (the trace of the
+/// difference gradient): Galilean invariant, but not adjoint to `∇h`.
+pub fn div_diff_into<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    psi: &[[f64; D]],
+    out: &mut [f64],
+) {
+    let d = D as f64;
+    out.par_iter_mut()
+        .with_min_len(MIN_ROWS)
+        .enumerate()
+        .for_each(|(i, o)| {
+            let pi = psi[i];
+            let mut s = 0.0;
+            for k in nl.row(i) {
+                let j = nl.indices[k] as usize;
+                let dx = &nl.dx[k];
+                let mut dot = 0.0;
+                for a in 0..D {
+                    dot += (psi[j][a] - pi[a]) * dx[a];
+                }
+                s += vol[j] * dot * nl.wr2[k];
+            }
+            *o = d * s;
+        });
+}
+
 /// Sum-form divergence `∇̂h·ψ` at every particle.
 pub fn div_sum<const D: usize>(nl: &NeighborList<D>, vol: &[f64], psi: &[[f64; D]]) -> Vec<f64> {
     let mut out = vec![0.0; nl.len()];

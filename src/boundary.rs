@@ -1,0 +1,350 @@
+//! Boundaries: planar walls by mirror-image ghosts, periodic boxes, and none.
+//!
+//! **Walls.** A wall is an axis-aligned plane. Every fluid particle within `reach` of a wall has
+//! a ghost: its mirror image across the wall (and across each pair of walls at a corner, and each
+//! triple at a 3D corner). Ghosts are stored after all other particles and carry
+//! [`Role::Ghost`]. Their values follow the source:
+//!
+//! * scalars (pressure, increments) are copied: a homogeneous Neumann condition, and a symmetric
+//!   Poisson matrix (the image distance is the same seen from either end of a pair);
+//! * velocities follow the no-slip rule `u_g = 2 U_wall − u_src` across one wall (so the wall
+//!   velocity is reached half-way between source and image); at a corner the images across two
+//!   walls are applied in turn, and their mean is taken when the two orders disagree (a lid
+//!   corner), which gives `u_g = u_src`;
+//! * gradients and other "mirror" vectors follow `v_g = L v_src` (`L` flips the normal
+//!   components): the rule under which the pair `∇̂h·` / `∇h` stays exactly adjoint.
+
+use crate::error::InputError;
+use crate::neighbors::Periodicity;
+use crate::particles::{Particles, Role};
+use rayon::prelude::*;
+
+/// How a vector field is continued into the ghosts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VectorKind {
+    /// No-slip: `u_g = 2 U_wall − u_src` per wall.
+    Velocity,
+    /// Mirror: normal components flipped, tangential kept (`v_g = L v_src`).
+    Mirror,
+}
+
+/// Boundary handling the projection step and the flow solver call into.
+pub trait Boundary<const D: usize>: Send + Sync {
+    /// True when the boundary keeps ghost particles (so the fill stages are needed).
+    fn has_ghosts(&self) -> bool;
+    /// Periodic axes (for the neighbour search and position wrapping).
+    fn periodicity(&self) -> Periodicity<D>;
+    /// Copies scalar values into the ghosts.
+    fn fill_scalar(&self, role: &[Role], v: &mut [f64]);
+    /// Continues a vector field into the ghosts.
+    fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind);
+    /// Moves ghosts to the images of their sources (after the sources moved).
+    fn place_ghosts(&self, p: &mut Particles<D>);
+    /// Drops every ghost and creates images of the fluid particles within `reach` of a wall.
+    fn make_ghosts(&self, p: &mut Particles<D>, reach: f64);
+    /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
+    /// reports a fluid particle that has left the domain.
+    fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
+}
+
+/// One planar wall `x_axis = position`, with the fluid on the `inward` side.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Wall<const D: usize> {
+    /// Normal axis.
+    pub axis: usize,
+    /// Coordinate of the plane.
+    pub position: f64,
+    /// +1 when the fluid is at larger coordinates (a lower wall), −1 otherwise.
+    pub inward: f64,
+    /// Wall velocity (tangential for a moving lid).
+    pub velocity: [f64; D],
+}
+
+impl<const D: usize> Wall<D> {
+    /// Signed distance of `x` from the plane, positive on the fluid side.
+    #[inline]
+    pub fn distance(&self, x: &[f64; D]) -> f64 {
+        self.inward * (x[self.axis] - self.position)
+    }
+    /// Mirror image of `x`.
+    #[inline]
+    pub fn reflect(&self, x: &[f64; D]) -> [f64; D] {
+        let mut y = *x;
+        y[self.axis] = 2.0 * self.position - x[self.axis];
+        y
+    }
+}
+
+/// A set of planar walls (at most 8) with mirror-image ghosts; optionally periodic on other axes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Walls<const D: usize> {
+    /// The walls; bit `k` of a ghost's `walls` field refers to `walls[k]`.
+    pub walls: Vec<Wall<D>>,
+    /// Periodic axes (must not carry walls).
+    pub periodic: Periodicity<D>,
+}
+
+impl<const D: usize> Walls<D> {
+    /// Stationary walls on every face of the box `[lo, hi]`.
+    pub fn closed_box(lo: [f64; D], hi: [f64; D]) -> Self {
+        let mut walls = Vec::new();
+        for a in 0..D {
+            walls.push(Wall {
+                axis: a,
+                position: lo[a],
+                inward: 1.0,
+                velocity: [0.0; D],
+            });
+            walls.push(Wall {
+                axis: a,
+                position: hi[a],
+                inward: -1.0,
+                velocity: [0.0; D],
+            });
+        }
+        Walls {
+            walls,
+            periodic: Periodicity::none(),
+        }
+    }
+
+    /// The lid-driven cavity `[0, L]^D`: the wall at `x_{D−1} = L` moves with `lid` along axis 0.
+    pub fn cavity(side: f64, lid: f64) -> Self {
+        let mut w = Self::closed_box([0.0; D], [side; D]);
+        for wall in &mut w.walls {
+            if wall.axis == D - 1 && wall.inward < 0.0 {
+                wall.velocity[0] = lid;
+            }
+        }
+        w
+    }
+
+    fn image(&self, x: &[f64; D], mask: u8) -> [f64; D] {
+        let mut y = *x;
+        for (k, w) in self.walls.iter().enumerate() {
+            if mask & (1 << k) != 0 {
+                y = w.reflect(&y);
+            }
+        }
+        y
+    }
+
+    fn velocity_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
+        let ks: Vec<usize> = (0..self.walls.len())
+            .filter(|k| mask & (1 << k) != 0)
+            .collect();
+        match ks.len() {
+            1 => {
+                let u = self.walls[ks[0]].velocity;
+                std::array::from_fn(|a| 2.0 * u[a] - v[a])
+            }
+            _ => {
+                // apply the walls in turn, in both (all) cyclic orders, and average
+                let mut acc = [0.0; D];
+                for start in 0..ks.len() {
+                    let mut y = *v;
+                    for m in 0..ks.len() {
+                        let u = self.walls[ks[(start + m) % ks.len()]].velocity;
+                        y = std::array::from_fn(|a| 2.0 * u[a] - y[a]);
+                    }
+                    for a in 0..D {
+                        acc[a] += y[a];
+                    }
+                }
+                acc.map(|s| s / ks.len() as f64)
+            }
+        }
+    }
+
+    fn mirror_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
+        let mut y = *v;
+        for (k, w) in self.walls.iter().enumerate() {
+            if mask & (1 << k) != 0 {
+                y[w.axis] = -y[w.axis];
+            }
+        }
+        y
+    }
+}
+
+impl<const D: usize> Boundary<D> for Walls<D> {
+    fn has_ghosts(&self) -> bool {
+        !self.walls.is_empty()
+    }
+
+    fn periodicity(&self) -> Periodicity<D> {
+        self.periodic
+    }
+
+    fn fill_scalar(&self, role: &[Role], v: &mut [f64]) {
+        let first = first_ghost(role);
+        let (src, ghosts) = v.split_at_mut(first);
+        ghosts
+            .par_iter_mut()
+            .zip(role[first..].par_iter())
+            .for_each(|(g, r)| {
+                if let Role::Ghost { source, .. } = r {
+                    *g = src[*source as usize];
+                }
+            });
+    }
+
+    fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind) {
+        let first = first_ghost(role);
+        let (src, ghosts) = v.split_at_mut(first);
+        ghosts
+            .par_iter_mut()
+            .zip(role[first..].par_iter())
+            .for_each(|(g, r)| {
+                if let Role::Ghost { source, walls } = r {
+                    let s = &src[*source as usize];
+                    *g = match kind {
+                        VectorKind::Velocity => self.velocity_image(s, *walls),
+                        VectorKind::Mirror => self.mirror_image(s, *walls),
+                    };
+                }
+            });
+    }
+
+    fn place_ghosts(&self, p: &mut Particles<D>) {
+        let first = first_ghost(&p.role);
+        let (src, ghosts) = p.x.split_at_mut(first);
+        ghosts
+            .par_iter_mut()
+            .zip(p.role[first..].par_iter())
+            .for_each(|(g, r)| {
+                if let Role::Ghost { source, walls } = r {
+                    *g = self.image(&src[*source as usize], *walls);
+                }
+            });
+        let (vs, vg) = p.vol.split_at_mut(first);
+        for (g, r) in vg.iter_mut().zip(&p.role[first..]) {
+            if let Role::Ghost { source, .. } = r {
+                *g = vs[*source as usize];
+            }
+        }
+    }
+
+    fn make_ghosts(&self, p: &mut Particles<D>, reach: f64) {
+        let first = first_ghost(&p.role);
+        p.truncate(first);
+        let nw = self.walls.len();
+        assert!(nw <= 8, "at most 8 walls");
+        for i in 0..first {
+            if !p.role[i].is_fluid() {
+                continue;
+            }
+            let x = p.x[i];
+            let near: Vec<usize> = (0..nw)
+                .filter(|&k| self.walls[k].distance(&x) < reach)
+                .collect();
+            // every non-empty subset of the near walls with distinct axes
+            for subset in 1u32..(1 << near.len()) {
+                let ks: Vec<usize> = (0..near.len())
+                    .filter(|b| subset & (1 << b) != 0)
+                    .map(|b| near[b])
+                    .collect();
+                let mut axes: Vec<usize> = ks.iter().map(|&k| self.walls[k].axis).collect();
+                axes.sort_unstable();
+                axes.dedup();
+                if axes.len() != ks.len() {
+                    continue;
+                }
+                let mask: u8 = ks.iter().fold(0u8, |m, &k| m | (1 << k));
+                let y = self.image(&x, mask);
+                let u = self.velocity_image(&p.u[i], mask);
+                let (pi, vi) = (p.p[i], p.vol[i]);
+                p.push(
+                    y,
+                    u,
+                    pi,
+                    vi,
+                    Role::Ghost {
+                        source: i as u32,
+                        walls: mask,
+                    },
+                );
+            }
+        }
+    }
+
+    fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError> {
+        let per = self.periodic;
+        for i in 0..p.len() {
+            if !p.role[i].is_fluid() {
+                continue;
+            }
+            if per.any() {
+                per.wrap(&mut p.x[i]);
+            }
+            for w in &self.walls {
+                if !(w.distance(&p.x[i]) > 0.0) {
+                    return Err(InputError::OutsideDomain {
+                        particle: i,
+                        position: p.x[i].to_vec(),
+                        reason: format!(
+                            "crossed the wall x[{}] = {} (time step too large for the flow?)",
+                            w.axis, w.position
+                        ),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A periodic box without walls.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PeriodicBox<const D: usize> {
+    /// The periodic axes.
+    pub periodic: Periodicity<D>,
+}
+
+impl<const D: usize> Boundary<D> for PeriodicBox<D> {
+    fn has_ghosts(&self) -> bool {
+        false
+    }
+    fn periodicity(&self) -> Periodicity<D> {
+        self.periodic
+    }
+    fn fill_scalar(&self, _: &[Role], _: &mut [f64]) {}
+    fn fill_vector(&self, _: &[Role], _: &mut [[f64; D]], _: VectorKind) {}
+    fn place_ghosts(&self, _: &mut Particles<D>) {}
+    fn make_ghosts(&self, _: &mut Particles<D>, _: f64) {}
+    fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError> {
+        for (x, r) in p.x.iter_mut().zip(&p.role) {
+            if r.is_fluid() {
+                self.periodic.wrap(x);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// No boundary handling at all (free space, or a Dirichlet band the caller placed).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NoBoundary;
+
+impl<const D: usize> Boundary<D> for NoBoundary {
+    fn has_ghosts(&self) -> bool {
+        false
+    }
+    fn periodicity(&self) -> Periodicity<D> {
+        Periodicity::none()
+    }
+    fn fill_scalar(&self, _: &[Role], _: &mut [f64]) {}
+    fn fill_vector(&self, _: &[Role], _: &mut [[f64; D]], _: VectorKind) {}
+    fn place_ghosts(&self, _: &mut Particles<D>) {}
+    fn make_ghosts(&self, _: &mut Particles<D>, _: f64) {}
+    fn confine(&self, _: &mut Particles<D>) -> Result<(), InputError> {
+        Ok(())
+    }
+}
+
+/// Index of the first ghost (ghosts are kept after every other particle).
+pub fn first_ghost(role: &[Role]) -> usize {
+    role.iter()
+        .position(|r| matches!(r, Role::Ghost { .. }))
+        .unwrap_or(role.len())
+}

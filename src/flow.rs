@@ -1,0 +1,518 @@
+//! A complete incompressible particle-flow solver around [`ProjectionStep`]: time-step control,
+//! neighbour maintenance, ghosts, volumes, advection and particle shifting.
+//!
+//! One [`Simulation::advance`]:
+//! 1. moves ghosts with their sources; when the neighbour candidates have expired, regenerates
+//!    the ghosts and searches again (otherwise only re-measures pairs);
+//! 2. recomputes volumes (`ω_i = 1/Σ_{j≠i} w_h(r_ij)`) if asked;
+//! 3. picks `Δt` from the CFL, viscous and body-force limits;
+//! 4. Eulerian frame: predictor with `−(u·∇h)u` and projection on the fixed particles;
+//!    Lagrangian frame: predictor at `xⁿ`, particles moved with `u*`, neighbours refreshed, and the
+//!    projection at the new positions;
+//! 5. Lagrangian frame: shifts particles by Fickian diffusion
+//!    (`δx_i = −A h |u_i| Δt ∇C_i`, Skillen et al. 2013's scaling of Lind et al. 2012's law) and
+//!    corrects their velocity and pressure to the new position by a first-order Taylor
+//!    expansion (Xu et al. 2009), `u_i += (δx_i·∇h) u_i`.
+
+use crate::boundary::{Boundary, VectorKind};
+use crate::error::{Error, InputError};
+use crate::geometry::number_density_volumes;
+use crate::math::norm2;
+use crate::neighbors::{NeighborConfig, NeighborList};
+use crate::operators::{grad_diff_into, grad_vec_into};
+use crate::particles::Particles;
+use crate::projection::{ProjectionParams, ProjectionStep, StepReport};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Limits on the time step. `Δt = min(dt_max, cfl·h/U, visc/(ν λ), force·√(h/|g|))` where `U` is
+/// the larger of the maximum speed and `u_ref`, and `λ = max_i 2d Σ_j ω_j w_h/r²` is the
+/// Gershgorin bound of `−Δh`'s spectrum divided by 2 (forward Euler on `ν Δh u` is stable for
+/// `visc ≤ 1`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TimeStepLimits {
+    /// CFL number on `h / U` (default 0.2).
+    pub cfl: f64,
+    /// Fraction of the explicit viscous stability limit (default 0.5).
+    pub visc: f64,
+    /// Factor on `√(h/|g|)` (default 0.25).
+    pub force: f64,
+    /// Reference speed: the CFL limit never assumes a speed below it (default 1).
+    pub u_ref: f64,
+    /// Upper bound on `Δt` (default ∞).
+    pub dt_max: f64,
+    /// A fixed `Δt`, overriding the limits (it is still checked against them and named when it
+    /// exceeds one).
+    pub dt_fixed: Option<f64>,
+}
+
+impl Default for TimeStepLimits {
+    fn default() -> Self {
+        TimeStepLimits {
+            cfl: 0.2,
+            visc: 0.5,
+            force: 0.25,
+            u_ref: 1.0,
+            dt_max: f64::INFINITY,
+            dt_fixed: None,
+        }
+    }
+}
+
+/// Which limit set the time step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DtLimit {
+    /// Advective CFL.
+    #[default]
+    Cfl,
+    /// Explicit viscous stability.
+    Viscous,
+    /// Body force.
+    Force,
+    /// `dt_max`.
+    Max,
+    /// A fixed step.
+    Fixed,
+}
+
+/// Frame of the particles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Motion {
+    /// Particles move with the flow (plus shifting).
+    #[default]
+    Lagrangian,
+    /// Particles stay; the convective term `−(u·∇h)u` is added to the predictor.
+    Eulerian,
+}
+
+impl std::str::FromStr for Motion {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "lagrangian" => Ok(Motion::Lagrangian),
+            "eulerian" => Ok(Motion::Eulerian),
+            _ => Err(format!(
+                "unknown motion '{s}': expected lagrangian or eulerian"
+            )),
+        }
+    }
+}
+
+/// Fickian particle shifting (Lagrangian frame only).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Shifting {
+    /// `A` in `δx = −A h |u| Δt ∇C` (default 2).
+    pub coefficient: f64,
+    /// Largest shift per step as a fraction of the particle spacing (default 0.2).
+    pub max_fraction: f64,
+    /// Correct velocity and pressure to the shifted position (default true).
+    pub correct: bool,
+    /// Scale the shift by the global maximum speed instead of the particle's own speed, so that
+    /// stagnation regions (where the strain deforms the distribution most) are shifted too
+    /// (default true).
+    pub global_speed: bool,
+}
+
+impl Default for Shifting {
+    fn default() -> Self {
+        Shifting {
+            coefficient: 2.0,
+            max_fraction: 0.2,
+            correct: true,
+            global_speed: true,
+        }
+    }
+}
+
+/// How particle volumes are set.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumeRule {
+    /// `ω_i = 1 / Σ_{j≠i} w_h(r_ij)`, recomputed every step (MISSION §2's consistency fix).
+    #[default]
+    NumberDensity,
+    /// Kept as given.
+    Fixed,
+}
+
+/// Everything the flow solver needs besides the particles and the boundary.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FlowParams<const D: usize> {
+    /// Projection parameters (ρ, ν, g, scheme, solver).
+    pub projection: ProjectionParams<D>,
+    /// Time-step limits.
+    pub limits: TimeStepLimits,
+    /// Frame.
+    pub motion: Motion,
+    /// Shifting (Lagrangian only; `None` = pure Lagrangian).
+    pub shifting: Option<Shifting>,
+    /// Volumes.
+    pub volumes: VolumeRule,
+    /// Initial particle spacing `Δx` (for shift limits).
+    pub dx: f64,
+}
+
+/// A flow step's report: the projection's plus what the flow solver did around it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct FlowReport {
+    /// Step number (1 for the first step).
+    pub step: u64,
+    /// Time after the step.
+    pub time: f64,
+    /// Which limit set `Δt`.
+    pub dt_limit: DtLimit,
+    /// The neighbour candidates were rebuilt this step.
+    pub neighbors_rebuilt: bool,
+    /// Largest shift this step (distance units).
+    pub max_shift: f64,
+    /// Seconds: ghosts + neighbour list + volumes.
+    pub neighbors_seconds: f64,
+    /// Seconds: advection, shifting, confinement.
+    pub advect_seconds: f64,
+    /// The projection's report.
+    pub projection: StepReport,
+}
+
+/// A running flow.
+pub struct Simulation<const D: usize, B: Boundary<D>> {
+    /// Particle state (fluid, Dirichlet band, then ghosts).
+    pub particles: Particles<D>,
+    /// The neighbour list at the current positions.
+    pub nl: NeighborList<D>,
+    /// The boundary.
+    pub boundary: B,
+    /// Parameters.
+    pub params: FlowParams<D>,
+    /// Projection scratch.
+    pub projection: ProjectionStep<D>,
+    /// Current time.
+    pub time: f64,
+    /// Steps taken.
+    pub steps: u64,
+    grad: Vec<[[f64; D]; D]>,
+    work: Vec<[f64; D]>,
+    gp: Vec<[f64; D]>,
+    stale: bool,
+}
+
+impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
+    /// Sets up ghosts, the neighbour list and volumes for `particles` (fluid and Dirichlet
+    /// particles, no ghosts yet). The neighbour configuration's periodicity is taken from the
+    /// boundary.
+    pub fn new(
+        mut particles: Particles<D>,
+        boundary: B,
+        neighbors: NeighborConfig<D>,
+        params: FlowParams<D>,
+    ) -> Result<Self, Error> {
+        params.projection.validate()?;
+        if !(params.dx > 0.0 && params.dx.is_finite()) {
+            return Err(InputError::Parameter {
+                name: "dx",
+                value: params.dx,
+                reason: "the particle spacing must be positive and finite".into(),
+            }
+            .into());
+        }
+        particles.validate()?;
+        let config = neighbors.with_periodicity(boundary.periodicity());
+        let reach = config.h + config.skin;
+        boundary.make_ghosts(&mut particles, reach);
+        let nl = NeighborList::build(config, &particles.x)?;
+        let mut sim = Simulation {
+            particles,
+            nl,
+            boundary,
+            params,
+            projection: ProjectionStep::new(),
+            time: 0.0,
+            steps: 0,
+            grad: Vec::new(),
+            work: Vec::new(),
+            gp: Vec::new(),
+            stale: false,
+        };
+        sim.update_volumes();
+        Ok(sim)
+    }
+
+    fn update_volumes(&mut self) {
+        if self.params.volumes == VolumeRule::NumberDensity {
+            let v = number_density_volumes(&self.nl);
+            for (i, r) in self.particles.role.iter().enumerate() {
+                if r.is_fluid() {
+                    self.particles.vol[i] = v[i];
+                }
+            }
+            // ghosts copy their source's volume
+            self.boundary.place_ghosts(&mut self.particles);
+        }
+    }
+
+    /// Brings ghosts, neighbours and volumes up to date with the positions.
+    fn refresh(&mut self) -> Result<bool, Error> {
+        self.boundary.place_ghosts(&mut self.particles);
+        let mut rebuilt = false;
+        if self.nl.needs_rebuild(&self.particles.x) {
+            let c = self.nl.config();
+            let reach = c.h + c.skin;
+            self.boundary.make_ghosts(&mut self.particles, reach);
+            self.nl.invalidate();
+            rebuilt = true;
+        }
+        self.nl.update(&self.particles.x)?;
+        self.update_volumes();
+        Ok(rebuilt)
+    }
+
+    /// The time step for the current state, and the limit that set it.
+    pub fn time_step(&self) -> (f64, DtLimit) {
+        let l = &self.params.limits;
+        let h = self.nl.h();
+        let p = &self.particles;
+        let umax =
+            p.u.iter()
+                .zip(&p.role)
+                .filter(|(_, r)| r.is_fluid())
+                .map(|(u, _)| norm2(u))
+                .fold(0.0f64, f64::max)
+                .sqrt();
+        let mut dt = l.dt_max;
+        let mut which = DtLimit::Max;
+        let cfl = l.cfl * h / umax.max(l.u_ref);
+        if cfl < dt {
+            dt = cfl;
+            which = DtLimit::Cfl;
+        }
+        let nu = self.params.projection.nu;
+        if nu > 0.0 {
+            let lam = self.viscous_eigen_bound();
+            let v = l.visc / (nu * lam);
+            if v < dt {
+                dt = v;
+                which = DtLimit::Viscous;
+            }
+        }
+        let g = norm2(&self.params.projection.gravity).sqrt();
+        if g > 0.0 {
+            let f = l.force * (h / g).sqrt();
+            if f < dt {
+                dt = f;
+                which = DtLimit::Force;
+            }
+        }
+        if let Some(fixed) = l.dt_fixed {
+            return (fixed, DtLimit::Fixed);
+        }
+        (dt, which)
+    }
+
+    /// `max_i 2d Σ_j ω_j w_h/r²` over fluid rows: half the Gershgorin bound on the spectrum of
+    /// `−Δh` (so forward Euler on `ν Δh u` is stable for `ν Δt λ ≤ 1`).
+    pub fn viscous_eigen_bound(&self) -> f64 {
+        let nl = &self.nl;
+        let p = &self.particles;
+        let c = 2.0 * D as f64;
+        (0..nl.len())
+            .into_par_iter()
+            .filter(|&i| p.role[i].is_fluid())
+            .map(|i| {
+                c * nl
+                    .row(i)
+                    .map(|k| p.vol[nl.indices[k] as usize] * nl.wr2[k])
+                    .sum::<f64>()
+            })
+            .reduce(|| 0.0, f64::max)
+    }
+
+    /// Advances one step.
+    ///
+    /// Eulerian: predictor (with `−(u·∇h)u`) and projection on the fixed configuration.
+    /// Lagrangian: predictor at `xⁿ`, particles moved to `x* = xⁿ + Δt u*`, neighbours and volumes
+    /// refreshed, projection at `x*` (so the divergence is removed on the configuration the
+    /// particles occupy, as in Cummins & Rudman 1999), then shifting.
+    pub fn advance(&mut self) -> Result<FlowReport, Error> {
+        let t0 = Instant::now();
+        let mut rebuilt = false;
+        if self.stale {
+            rebuilt |= self.refresh()?;
+            self.stale = false;
+        }
+        let mut neighbors_seconds = t0.elapsed().as_secs_f64();
+        let (dt, dt_limit) = self.time_step();
+        let n = self.particles.len();
+        let lagrangian = self.params.motion == Motion::Lagrangian;
+        let accel = if !lagrangian {
+            // −(u·∇h)u with the difference gradient
+            self.boundary.fill_vector(
+                &self.particles.role,
+                &mut self.particles.u,
+                VectorKind::Velocity,
+            );
+            self.grad.resize(n, [[0.0; D]; D]);
+            grad_vec_into(
+                &self.nl,
+                &self.particles.vol,
+                &self.particles.u,
+                &mut self.grad,
+            );
+            self.work.resize(n, [0.0; D]);
+            let u = &self.particles.u;
+            self.work
+                .par_iter_mut()
+                .zip(self.grad.par_iter())
+                .zip(u.par_iter())
+                .for_each(|((a, g), ui)| {
+                    *a = std::array::from_fn(|k| -(0..D).map(|b| g[k][b] * ui[b]).sum::<f64>());
+                });
+            Some(&self.work[..])
+        } else {
+            None
+        };
+        let proj = &self.params.projection;
+        let t_pred = self.projection.predict(
+            &mut self.particles,
+            &self.nl,
+            &self.boundary,
+            proj,
+            dt,
+            accel,
+        )?;
+        let mut advect_seconds = 0.0;
+        if lagrangian {
+            // move with u* and refresh the configuration before projecting
+            let t1 = Instant::now();
+            let p = &mut self.particles;
+            for i in 0..n {
+                if p.role[i].is_fluid() {
+                    for a in 0..D {
+                        p.x[i][a] += dt * self.projection.u_star[i][a];
+                    }
+                }
+            }
+            self.boundary.confine(p)?;
+            advect_seconds += t1.elapsed().as_secs_f64();
+            let t2 = Instant::now();
+            rebuilt |= self.refresh()?;
+            neighbors_seconds += t2.elapsed().as_secs_f64();
+        }
+        let mut report = self.projection.project(
+            &mut self.particles,
+            &self.nl,
+            &self.boundary,
+            &self.params.projection,
+            dt,
+        )?;
+        report.timings.predictor = t_pred;
+        let mut max_shift = 0.0;
+        if lagrangian && self.params.shifting.is_some() {
+            let t1 = Instant::now();
+            max_shift = self.shift(dt)?;
+            if max_shift > 0.0 {
+                self.stale = true;
+            }
+            advect_seconds += t1.elapsed().as_secs_f64();
+        }
+        self.time += dt;
+        self.steps += 1;
+        Ok(FlowReport {
+            step: self.steps,
+            time: self.time,
+            dt_limit,
+            neighbors_rebuilt: rebuilt,
+            max_shift,
+            neighbors_seconds,
+            advect_seconds,
+            projection: report,
+        })
+    }
+
+    /// Fickian shifting with velocity/pressure correction at the current configuration;
+    /// returns the largest shift.
+    fn shift(&mut self, dt: f64) -> Result<f64, Error> {
+        let Some(sh) = self.params.shifting else {
+            return Ok(0.0);
+        };
+        let n = self.particles.len();
+        let nl = &self.nl;
+        let kernel = *nl.kernel();
+        let h = nl.h();
+        let p = &self.particles;
+        let lim = sh.max_fraction * self.params.dx;
+        let umax =
+            p.u.iter()
+                .zip(&p.role)
+                .filter(|(_, r)| r.is_fluid())
+                .map(|(u, _)| norm2(u))
+                .fold(0.0f64, f64::max)
+                .sqrt();
+        // δx_i = −A h |u_i| Δt ∇C_i,  ∇C_i = Σ_j ω_j ∇_i w_h(r_ij) = −Σ_j ω_j w_h'(r) dx/r
+        self.work.resize(n, [0.0; D]);
+        self.work.par_iter_mut().enumerate().for_each(|(i, s)| {
+            *s = [0.0; D];
+            if !p.role[i].is_fluid() {
+                return;
+            }
+            let mut gc = [0.0; D];
+            for k in nl.row(i) {
+                let j = nl.indices[k] as usize;
+                let r = nl.r2[k].sqrt();
+                let c = -p.vol[j] * kernel.dw_h(r) / r;
+                for a in 0..D {
+                    gc[a] += c * nl.dx[k][a];
+                }
+            }
+            let speed = if sh.global_speed {
+                umax
+            } else {
+                norm2(&p.u[i]).sqrt()
+            };
+            let f = -sh.coefficient * h * speed * dt;
+            let mut d: [f64; D] = gc.map(|g| f * g);
+            let m = norm2(&d).sqrt();
+            if m > lim {
+                d = d.map(|v| v * lim / m);
+            }
+            *s = d;
+        });
+        let max_shift = self
+            .work
+            .iter()
+            .map(|d| norm2(d).sqrt())
+            .fold(0.0, f64::max);
+        let p = &mut self.particles;
+        if sh.correct {
+            // Taylor correction of u and p to the shifted position (gradients before the shift)
+            self.boundary
+                .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+            self.grad.resize(n, [[0.0; D]; D]);
+            grad_vec_into(&self.nl, &p.vol, &p.u, &mut self.grad);
+            self.gp.resize(n, [0.0; D]);
+            grad_diff_into(&self.nl, &p.vol, &p.p, &mut self.gp);
+            for i in 0..n {
+                if !p.role[i].is_fluid() {
+                    continue;
+                }
+                let d = self.work[i];
+                for a in 0..D {
+                    p.u[i][a] += (0..D).map(|b| self.grad[i][a][b] * d[b]).sum::<f64>();
+                }
+                p.p[i] += (0..D).map(|b| self.gp[i][b] * d[b]).sum::<f64>();
+            }
+        }
+        for i in 0..n {
+            if p.role[i].is_fluid() {
+                for a in 0..D {
+                    p.x[i][a] += self.work[i][a];
+                }
+            }
+        }
+        self.boundary.confine(p)?;
+        Ok(max_shift)
+    }
+}

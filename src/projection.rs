@@ -1,0 +1,453 @@
+//! The incremental pressure-Poisson projection step (MISSION §4), as a module a particle code can
+//! call from its own loop.
+//!
+//! Given `xⁿ, uⁿ, pⁿ` and a neighbour list at `xⁿ`, one [`ProjectionStep::step`]:
+//!
+//! 1. checks h-connectivity (before any solve) and computes `c0`;
+//! 2. predicts `u* = uⁿ + Δt (ν Δh uⁿ + g + a_extra − ∇h pⁿ / ρ)` (the pressure term only in the
+//!    incremental schemes);
+//! 3. solves `−Δh φ = ∇̂h·f` with `f = −(ρ/Δt) u*` (sum-form divergence for the source);
+//! 4. corrects `uⁿ⁺¹ = u* − (Δt/ρ) ∇h φ` (difference gradient) and sets
+//!    `pⁿ⁺¹ = φ` (non-incremental), `pⁿ + φ` (standard incremental) or
+//!    `pⁿ + φ − ρν ∇̂h·u*` (rotational incremental, Timmermans et al. 1996);
+//! 5. returns a [`StepReport`] with the diagnostics: connectivity, `c0`, the Theorem 4.5 ratio
+//!    `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)`, the solve, divergence before and after, energy and timings.
+//!
+//! The pair `∇̂h·` / `∇h` is discretely adjoint (Lemma 4.3), which is why the source uses one and
+//! the correction the other. Advection and particle shifting are the caller's business (see
+//! [`crate::flow`] for a complete solver). The step holds only scratch memory: the caller owns
+//! the particles.
+
+use crate::boundary::{Boundary, VectorKind};
+use crate::diagnostics::{
+    connectivity, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio,
+    ConnectivitySummary, Region,
+};
+use crate::error::{Error, InputError};
+use crate::math::norm2;
+use crate::neighbors::NeighborList;
+use crate::operators::{div_sum_into, grad_diff_into, laplacian_vec_into};
+use crate::particles::Particles;
+use crate::poisson::{PoissonSolver, SolveInfo, SolveParams};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Pressure-correction scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Chorin's projection: the predictor has no pressure gradient and `pⁿ⁺¹ = φ`.
+    NonIncremental,
+    /// Standard incremental (Goda/van Kan): `pⁿ⁺¹ = pⁿ + φ`.
+    Incremental,
+    /// Rotational incremental (Timmermans et al.): `pⁿ⁺¹ = pⁿ + φ − ρν ∇̂h·u*`.
+    #[default]
+    Rotational,
+}
+
+impl std::str::FromStr for Scheme {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "non_incremental" | "nonincremental" | "chorin" => Ok(Scheme::NonIncremental),
+            "incremental" | "standard" => Ok(Scheme::Incremental),
+            "rotational" => Ok(Scheme::Rotational),
+            _ => Err(format!(
+                "unknown scheme '{s}': expected non-incremental, incremental or rotational"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Scheme {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Scheme::NonIncremental => "non-incremental",
+            Scheme::Incremental => "incremental",
+            Scheme::Rotational => "rotational",
+        })
+    }
+}
+
+/// Physical and numerical parameters of the projection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProjectionParams<const D: usize> {
+    /// Density `ρ`.
+    pub rho: f64,
+    /// Kinematic viscosity `ν` (0 skips the viscous stage).
+    pub nu: f64,
+    /// Body force per unit mass `g` (all zero skips the stage).
+    pub gravity: [f64; D],
+    /// Pressure-correction scheme.
+    pub scheme: Scheme,
+    /// Linear solve parameters.
+    pub solve: SolveParams,
+    /// Floating (pure Neumann) components the problem is expected to have: 1 for a box closed
+    /// by walls, 0 when a Dirichlet band touches every part of the fluid. More are reported as a
+    /// connectivity failure.
+    pub allowed_floating: usize,
+}
+
+impl<const D: usize> ProjectionParams<D> {
+    /// `ρ = 1`, viscosity `nu`, no body force, the rotational scheme, default solver, one
+    /// floating component allowed (closed box).
+    pub fn new(nu: f64) -> Self {
+        ProjectionParams {
+            rho: 1.0,
+            nu,
+            gravity: [0.0; D],
+            scheme: Scheme::Rotational,
+            solve: SolveParams::default(),
+            allowed_floating: 1,
+        }
+    }
+
+    /// Checks `ρ > 0`, `ν ≥ 0` and finite values.
+    pub fn validate(&self) -> Result<(), InputError> {
+        let bad = |name: &'static str, value: f64, reason: &str| {
+            Err(InputError::Parameter {
+                name,
+                value,
+                reason: reason.into(),
+            })
+        };
+        if !(self.rho > 0.0 && self.rho.is_finite()) {
+            return bad("rho", self.rho, "the density must be positive and finite");
+        }
+        if !(self.nu >= 0.0 && self.nu.is_finite()) {
+            return bad(
+                "nu",
+                self.nu,
+                "the viscosity must be non-negative and finite",
+            );
+        }
+        if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
+            return bad("gravity", *g, "the body force must be finite");
+        }
+        if !(self.solve.rel_tol >= 0.0) || !(self.solve.abs_tol >= 0.0) {
+            return bad(
+                "solve.rel_tol",
+                self.solve.rel_tol,
+                "tolerances must be non-negative",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Wall-clock seconds per stage of one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTimings {
+    /// Connectivity, `c0` and the other checks.
+    pub diagnostics: f64,
+    /// Predictor (viscous term, pressure gradient, forces).
+    pub predictor: f64,
+    /// Sum-form divergence of the source.
+    pub source: f64,
+    /// Poisson solve (assembly + factorisation/iterations).
+    pub solve: f64,
+    /// Correction and pressure update.
+    pub correction: f64,
+}
+
+/// What one projection step did and measured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepReport {
+    /// Time step used.
+    pub dt: f64,
+    /// Connectivity of the fluid graph (checked before the solve).
+    pub connectivity: ConnectivitySummary,
+    /// Semi-regularity constant `c0` over `Ω`.
+    pub c0: f64,
+    /// Theorem 4.5 ratio `‖φ‖_h01(Ω) / (√(d c0) ‖f‖_ℓ2(Ω))`, at most 1 by the theorem.
+    pub stability_ratio: f64,
+    /// The Poisson solve.
+    pub solve: SolveInfo,
+    /// `‖∇̂h·u*‖_ℓ2(Ω)`.
+    pub div_before: f64,
+    /// `‖∇̂h·uⁿ⁺¹‖_ℓ2(Ω)`.
+    pub div_after: f64,
+    /// `½ ρ Σ_Ω ω_i |u_i|²` after the step.
+    pub kinetic_energy: f64,
+    /// `max_Ω |u_i|` after the step.
+    pub max_speed: f64,
+    /// Seconds per stage.
+    pub timings: StageTimings,
+}
+
+fn check_dt(dt: f64) -> Result<(), InputError> {
+    if !(dt > 0.0 && dt.is_finite()) {
+        return Err(InputError::Parameter {
+            name: "dt",
+            value: dt,
+            reason: "the time step must be positive and finite".into(),
+        });
+    }
+    Ok(())
+}
+
+fn check_rows<const D: usize>(nl: &NeighborList<D>, n: usize) -> Result<(), InputError> {
+    if nl.len() != n {
+        return Err(InputError::LengthMismatch {
+            field: "neighbor list rows",
+            len: nl.len(),
+            expected: n,
+        });
+    }
+    Ok(())
+}
+
+/// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
+#[derive(Debug, Default)]
+pub struct ProjectionStep<const D: usize> {
+    /// Predictor velocity `u*` of the last step (all particles, ghosts filled).
+    pub u_star: Vec<[f64; D]>,
+    /// Pressure increment `φ` of the last step (warm start for CG).
+    pub phi: Vec<f64>,
+    work_vec: Vec<[f64; D]>,
+    work_vec2: Vec<[f64; D]>,
+    rhs: Vec<f64>,
+    work: Vec<f64>,
+    /// The Poisson solver and its caches.
+    pub solver: PoissonSolver,
+}
+
+impl<const D: usize> ProjectionStep<D> {
+    /// Empty scratch.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Predictor and projection on the same neighbour list: for particles that do not move
+    /// during the step (Eulerian/ALE frames, or a caller that moves them afterwards). A
+    /// Lagrangian loop calls [`predict`](Self::predict), moves the particles, updates the list
+    /// and then calls [`project`](Self::project), so that the divergence is removed on the
+    /// configuration the particles will occupy.
+    ///
+    /// On return `particles.u` and `particles.p` hold `uⁿ⁺¹` and `pⁿ⁺¹` (ghosts refilled).
+    pub fn step(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+    ) -> Result<StepReport, Error> {
+        let tp = self.predict(particles, nl, boundary, params, dt, accel)?;
+        let mut r = self.project(particles, nl, boundary, params, dt)?;
+        r.timings.predictor = tp;
+        Ok(r)
+    }
+
+    /// Predictor `u* = uⁿ + Δt (ν Δh uⁿ + g + accel − ∇h pⁿ/ρ)` into [`Self::u_star`] (the
+    /// pressure term only for the incremental schemes); `accel` is an optional extra
+    /// acceleration per particle (the caller's own forces, or a convective term). Particles are
+    /// not modified except their ghost values. Returns the seconds spent.
+    pub fn predict(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+    ) -> Result<f64, Error> {
+        check_dt(dt)?;
+        params.validate()?;
+        let n = particles.len();
+        check_rows(nl, n)?;
+        if let Some(extra) = accel {
+            if extra.len() != n {
+                return Err(InputError::LengthMismatch {
+                    field: "accel",
+                    len: extra.len(),
+                    expected: n,
+                }
+                .into());
+            }
+        }
+        let t = Instant::now();
+        let (rho, nu) = (params.rho, params.nu);
+        if boundary.has_ghosts() {
+            boundary.fill_vector(&particles.role, &mut particles.u, VectorKind::Velocity);
+            boundary.fill_scalar(&particles.role, &mut particles.p);
+        }
+        let role = &particles.role;
+        let vol = &particles.vol;
+        self.u_star.clone_from(&particles.u);
+        let acc = &mut self.work_vec;
+        acc.clear();
+        acc.resize(n, [0.0; D]);
+        if nu > 0.0 {
+            laplacian_vec_into(nl, vol, &particles.u, acc);
+            for a in acc.iter_mut() {
+                for v in a.iter_mut() {
+                    *v *= nu;
+                }
+            }
+        }
+        if params.scheme != Scheme::NonIncremental {
+            let gp = &mut self.work_vec2;
+            gp.resize(n, [0.0; D]);
+            grad_diff_into(nl, vol, &particles.p, gp);
+            for (a, g) in acc.iter_mut().zip(gp.iter()) {
+                for k in 0..D {
+                    a[k] -= g[k] / rho;
+                }
+            }
+        }
+        let g = params.gravity;
+        let has_g = g.iter().any(|&v| v != 0.0);
+        for i in 0..n {
+            if !role[i].is_fluid() {
+                continue;
+            }
+            let a = &acc[i];
+            let us = &mut self.u_star[i];
+            for k in 0..D {
+                let mut ak = a[k];
+                if has_g {
+                    ak += g[k];
+                }
+                if let Some(extra) = accel {
+                    ak += extra[i][k];
+                }
+                us[k] += dt * ak;
+            }
+        }
+        Ok(t.elapsed().as_secs_f64())
+    }
+
+    /// Projection of the predictor held in [`Self::u_star`] on the configuration described by
+    /// `nl` (which may differ from the predictor's, e.g. after the particles moved with `u*`;
+    /// ghosts may have been regenerated in between: their `u*` is refilled from their sources).
+    /// Checks connectivity before the solve, solves for `φ`, corrects velocity and pressure.
+    ///
+    /// On error in the checks or in the solve, `particles.u` and `particles.p` are unchanged.
+    pub fn project(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+    ) -> Result<StepReport, Error> {
+        check_dt(dt)?;
+        params.validate()?;
+        let n = particles.len();
+        check_rows(nl, n)?;
+        let mut report = StepReport {
+            dt,
+            ..Default::default()
+        };
+        let (rho, nu) = (params.rho, params.nu);
+        let ghosts = boundary.has_ghosts();
+
+        // 1. diagnostics that must pass before any solve
+        let t = Instant::now();
+        let comps = connectivity(nl, &particles.role);
+        report.connectivity = comps.summary();
+        comps.check(params.allowed_floating)?;
+        report.c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+        report.timings.diagnostics = t.elapsed().as_secs_f64();
+        let role = &particles.role;
+        let vol = &particles.vol;
+        self.u_star.resize(n, [0.0; D]);
+        if ghosts {
+            boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
+        }
+
+        // 3. source ∇̂h·f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band)
+        let t = Instant::now();
+        let c = -rho / dt;
+        let f = &mut self.work_vec2;
+        f.resize(n, [0.0; D]);
+        for i in 0..n {
+            f[i] = if matches!(role[i], crate::particles::Role::Dirichlet) {
+                [0.0; D]
+            } else {
+                self.u_star[i].map(|v| c * v)
+            };
+        }
+        self.rhs.resize(n, 0.0);
+        div_sum_into(nl, vol, f, &mut self.rhs);
+        report.div_before = norm_l2(vol, &self.rhs, role, Region::Omega) / rho * dt;
+        let f_l2 = norm_l2_vec(vol, f, role, Region::Omega);
+        report.timings.source = t.elapsed().as_secs_f64();
+
+        // 4. Poisson solve for the increment
+        let t = Instant::now();
+        self.phi.resize(n, 0.0);
+        report.solve = self.solver.solve(
+            nl,
+            vol,
+            role,
+            &comps,
+            &self.rhs,
+            &mut self.phi,
+            &params.solve,
+        )?;
+        report.timings.solve = t.elapsed().as_secs_f64();
+
+        // 5. correction and pressure update
+        let t = Instant::now();
+        let t_diag = Instant::now();
+        let phi_h01 = norm_h01(nl, vol, &self.phi, role, Region::Omega);
+        report.stability_ratio = stability_ratio(phi_h01, report.c0, f_l2, D);
+        let diag_extra = t_diag.elapsed().as_secs_f64();
+        let gphi = &mut self.work_vec;
+        gphi.resize(n, [0.0; D]);
+        grad_diff_into(nl, vol, &self.phi, gphi);
+        if params.scheme == Scheme::Rotational && nu > 0.0 {
+            self.work.resize(n, 0.0);
+            div_sum_into(nl, vol, &self.u_star, &mut self.work);
+        }
+        let s = dt / rho;
+        for i in 0..n {
+            if !role[i].is_fluid() {
+                continue;
+            }
+            let us = self.u_star[i];
+            let gp = gphi[i];
+            particles.u[i] = std::array::from_fn(|k| us[k] - s * gp[k]);
+            particles.p[i] = match params.scheme {
+                Scheme::NonIncremental => self.phi[i],
+                Scheme::Incremental => particles.p[i] + self.phi[i],
+                Scheme::Rotational => {
+                    let rot = if nu > 0.0 {
+                        rho * nu * self.work[i]
+                    } else {
+                        0.0
+                    };
+                    particles.p[i] + self.phi[i] - rot
+                }
+            };
+        }
+        if ghosts {
+            boundary.fill_vector(role, &mut particles.u, VectorKind::Velocity);
+            boundary.fill_scalar(role, &mut particles.p);
+        }
+        report.timings.correction = t.elapsed().as_secs_f64() - diag_extra;
+
+        let t = Instant::now();
+        self.rhs.resize(n, 0.0);
+        div_sum_into(nl, vol, &particles.u, &mut self.rhs);
+        report.div_after = norm_l2(vol, &self.rhs, role, Region::Omega);
+        let (mut ke, mut vmax) = (0.0, 0.0f64);
+        for i in 0..n {
+            if role[i].is_fluid() {
+                let u2 = norm2(&particles.u[i]);
+                ke += 0.5 * rho * vol[i] * u2;
+                vmax = vmax.max(u2);
+                if !u2.is_finite() {
+                    return Err(crate::error::SolveError::NonFinite { particle: i }.into());
+                }
+            }
+        }
+        report.kinetic_energy = ke;
+        report.max_speed = vmax.sqrt();
+        report.timings.diagnostics += diag_extra + t.elapsed().as_secs_f64();
+        Ok(report)
+    }
+}

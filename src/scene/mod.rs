@@ -1,0 +1,4 @@
+//! Ready-made scenes.
+
+pub mod cavity;
+pub mod taylor_green;
