@@ -14,6 +14,8 @@ pub mod math;
 pub mod neighbors;
 pub mod operators;
 pub mod particles;
+#[cfg(feature = "cli")]
+pub mod plot;
 pub mod poisson;
 pub mod projection;
 pub mod reference;

@@ -197,9 +197,37 @@ fn check_rows<const D: usize>(nl: &NeighborList<D>, n: usize) -> Result<(), Inpu
     Ok(())
 }
 
+/// Everything [`ProjectionStep::project`] read and wrote in one call: enough to re-run it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProjectionCapture<const D: usize> {
+    /// Positions (all particles, ghosts included).
+    pub x: Vec<[f64; D]>,
+    /// Volumes.
+    pub vol: Vec<f64>,
+    /// Roles.
+    pub role: Vec<crate::particles::Role>,
+    /// Predictor velocity `u*` (ghosts filled).
+    pub u_star: Vec<[f64; D]>,
+    /// Pressure `pⁿ` before the update.
+    pub p_in: Vec<f64>,
+    /// Time step.
+    pub dt: f64,
+    /// Velocity `uⁿ⁺¹` after the correction.
+    pub u_out: Vec<[f64; D]>,
+    /// Pressure `pⁿ⁺¹`.
+    pub p_out: Vec<f64>,
+    /// Increment `φ`.
+    pub phi: Vec<f64>,
+}
+
 /// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
 #[derive(Debug, Default)]
 pub struct ProjectionStep<const D: usize> {
+    /// When true, [`project`](Self::project) stores its inputs and outputs in
+    /// [`captured`](Self::captured) (for recording and re-running).
+    pub capture: bool,
+    /// The last capture.
+    pub captured: Option<ProjectionCapture<D>>,
     /// Predictor velocity `u*` of the last step (all particles, ghosts filled).
     pub u_star: Vec<[f64; D]>,
     /// Pressure increment `φ` of the last step (warm start for CG).
@@ -357,6 +385,15 @@ impl<const D: usize> ProjectionStep<D> {
         if ghosts {
             boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
         }
+        let mut capture = self.capture.then(|| ProjectionCapture {
+            x: particles.x.clone(),
+            vol: vol.clone(),
+            role: role.clone(),
+            u_star: self.u_star.clone(),
+            p_in: particles.p.clone(),
+            dt,
+            ..Default::default()
+        });
 
         // 3. source ∇̂h·f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band)
         let t = Instant::now();
@@ -447,6 +484,14 @@ impl<const D: usize> ProjectionStep<D> {
         }
         report.kinetic_energy = ke;
         report.max_speed = vmax.sqrt();
+        if let Some(c) = capture.as_mut() {
+            c.u_out = particles.u.clone();
+            c.p_out = particles.p.clone();
+            c.phi = self.phi.clone();
+        }
+        if capture.is_some() {
+            self.captured = capture;
+        }
         report.timings.diagnostics += diag_extra + t.elapsed().as_secs_f64();
         Ok(report)
     }
