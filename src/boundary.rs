@@ -45,6 +45,12 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
+    /// The no-slip rule of a ghost reflected across the walls in `walls` as an affine map
+    /// `u_g = σ u_src + b` (`σ = ±1`), for implicit solves that need it as matrix entries.
+    fn velocity_affine(&self, walls: u8) -> (f64, [f64; D]) {
+        let _ = walls;
+        (1.0, [0.0; D])
+    }
 }
 
 /// One planar wall `x_axis = position`, with the fluid on the `inward` side.
@@ -170,6 +176,15 @@ impl<const D: usize> Walls<D> {
 impl<const D: usize> Boundary<D> for Walls<D> {
     fn has_ghosts(&self) -> bool {
         !self.walls.is_empty()
+    }
+
+    fn velocity_affine(&self, walls: u8) -> (f64, [f64; D]) {
+        let sigma = if walls.count_ones() % 2 == 1 {
+            -1.0
+        } else {
+            1.0
+        };
+        (sigma, self.velocity_image(&[0.0; D], walls))
     }
 
     fn periodicity(&self) -> Periodicity<D> {

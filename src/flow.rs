@@ -102,6 +102,30 @@ impl std::str::FromStr for Motion {
     }
 }
 
+/// Time integration of the explicit terms of the predictor (convection in the Eulerian frame).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Integrator {
+    /// Forward Euler (first order).
+    Euler,
+    /// Second-order Adams–Bashforth with variable-step coefficients (forward Euler on the first
+    /// step). With Crank–Nicolson viscosity (`viscous_theta = ½`) and an incremental pressure
+    /// scheme the step is second order in time.
+    #[default]
+    Ab2,
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "euler" => Ok(Integrator::Euler),
+            "ab2" => Ok(Integrator::Ab2),
+            _ => Err(format!("unknown integrator '{s}': expected euler or ab2")),
+        }
+    }
+}
+
 /// Fickian particle shifting (Lagrangian frame only).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -149,6 +173,8 @@ pub struct FlowParams<const D: usize> {
     pub limits: TimeStepLimits,
     /// Frame.
     pub motion: Motion,
+    /// Integrator of the explicit terms.
+    pub integrator: Integrator,
     /// Shifting (Lagrangian only; `None` = pure Lagrangian).
     pub shifting: Option<Shifting>,
     /// Volumes.
@@ -198,6 +224,7 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     work: Vec<[f64; D]>,
     gp: Vec<[f64; D]>,
     stale: bool,
+    conv_prev: Option<(Vec<[f64; D]>, f64)>,
 }
 
 impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
@@ -236,6 +263,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             work: Vec::new(),
             gp: Vec::new(),
             stale: false,
+            conv_prev: None,
         };
         sim.update_volumes();
         Ok(sim)
@@ -290,9 +318,11 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             which = DtLimit::Cfl;
         }
         let nu = self.params.projection.nu;
-        if nu > 0.0 {
+        let theta = self.params.projection.viscous_theta;
+        if nu > 0.0 && theta < 0.5 {
+            // θ-scheme on ν Δh: stable for Δt ν λ_max (1 − 2θ) ≤ 2, λ_max ≤ 2λ (Gershgorin)
             let lam = self.viscous_eigen_bound();
-            let v = l.visc / (nu * lam);
+            let v = l.visc / (nu * lam * (1.0 - 2.0 * theta));
             if v < dt {
                 dt = v;
                 which = DtLimit::Viscous;
@@ -348,7 +378,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let n = self.particles.len();
         let lagrangian = self.params.motion == Motion::Lagrangian;
         let accel = if !lagrangian {
-            // −(u·∇h)u with the difference gradient
+            // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
             self.boundary.fill_vector(
                 &self.particles.role,
                 &mut self.particles.u,
@@ -361,15 +391,31 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 &self.particles.u,
                 &mut self.grad,
             );
-            self.work.resize(n, [0.0; D]);
+            let mut conv: Vec<[f64; D]> = vec![[0.0; D]; n];
             let u = &self.particles.u;
-            self.work
-                .par_iter_mut()
+            conv.par_iter_mut()
                 .zip(self.grad.par_iter())
                 .zip(u.par_iter())
                 .for_each(|((a, g), ui)| {
-                    *a = std::array::from_fn(|k| -(0..D).map(|b| g[k][b] * ui[b]).sum::<f64>());
+                    *a = std::array::from_fn(|k| (0..D).map(|b| g[k][b] * ui[b]).sum::<f64>());
                 });
+            self.work.resize(n, [0.0; D]);
+            match (&self.conv_prev, self.params.integrator) {
+                (Some((prev, dt_prev)), Integrator::Ab2) if prev.len() == n => {
+                    let r = dt / dt_prev;
+                    let (c1, c0) = (1.0 + 0.5 * r, 0.5 * r);
+                    for i in 0..n {
+                        self.work[i] =
+                            std::array::from_fn(|k| -(c1 * conv[i][k] - c0 * prev[i][k]));
+                    }
+                }
+                _ => {
+                    for i in 0..n {
+                        self.work[i] = conv[i].map(|v| -v);
+                    }
+                }
+            }
+            self.conv_prev = Some((conv, dt));
             Some(&self.work[..])
         } else {
             None

@@ -4,12 +4,14 @@
 //! Given `xⁿ, uⁿ, pⁿ` and a neighbour list at `xⁿ`, one [`ProjectionStep::step`]:
 //!
 //! 1. checks h-connectivity (before any solve) and computes `c0`;
-//! 2. predicts `u* = uⁿ + Δt (ν Δh uⁿ + g + a_extra − ∇h pⁿ / ρ)` (the pressure term only in the
-//!    incremental schemes);
+//! 2. predicts `u* − θΔtν Δh u* = uⁿ + Δt ((1−θ) ν Δh uⁿ + g + a_extra − ∇h pⁿ / ρ)` (the
+//!    pressure term only in the incremental schemes; `θ = ½` is Crank–Nicolson, solved with a
+//!    symmetric Helmholtz system, `θ = 0` is explicit);
 //! 3. solves `−Δh φ = ∇̂h·f` with `f = −(ρ/Δt) u*` (sum-form divergence for the source);
 //! 4. corrects `uⁿ⁺¹ = u* − (Δt/ρ) ∇h φ` (difference gradient) and sets
 //!    `pⁿ⁺¹ = φ` (non-incremental), `pⁿ + φ` (standard incremental) or
-//!    `pⁿ + φ − ρν ∇̂h·u*` (rotational incremental, Timmermans et al. 1996);
+//!    `pⁿ + φ − ρθν ∇̂h·u*` (rotational incremental, Timmermans et al. 1996, with `θ` the
+//!    implicit weight of the viscous term);
 //! 5. returns a [`StepReport`] with the diagnostics: connectivity, `c0`, the Theorem 4.5 ratio
 //!    `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)`, the solve, divergence before and after, energy and timings.
 //!
@@ -28,7 +30,7 @@ use crate::math::norm2;
 use crate::neighbors::NeighborList;
 use crate::operators::{div_sum_into, grad_diff_into, laplacian_vec_into};
 use crate::particles::Particles;
-use crate::poisson::{PoissonSolver, SolveInfo, SolveParams};
+use crate::poisson::{HelmholtzSolver, PoissonSolver, SolveInfo, SolveParams};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -80,6 +82,11 @@ pub struct ProjectionParams<const D: usize> {
     pub gravity: [f64; D],
     /// Pressure-correction scheme.
     pub scheme: Scheme,
+    /// Implicit weight `θ ∈ [0, 1]` of the viscous term in the predictor:
+    /// `u* − θΔtν Δh u* = uⁿ + Δt((1−θ) ν Δh uⁿ + …)`. 0 = explicit (no solve),
+    /// ½ = Crank–Nicolson (second order), 1 = backward Euler. The rotational correction is
+    /// `−ρ θν ∇̂h·u*` (the part of the implicit viscous term that the projection changes).
+    pub viscous_theta: f64,
     /// Linear solve parameters.
     pub solve: SolveParams,
     /// Floating (pure Neumann) components the problem is expected to have: 1 for a box closed
@@ -97,6 +104,7 @@ impl<const D: usize> ProjectionParams<D> {
             nu,
             gravity: [0.0; D],
             scheme: Scheme::Rotational,
+            viscous_theta: 0.5,
             solve: SolveParams::default(),
             allowed_floating: 1,
         }
@@ -119,6 +127,13 @@ impl<const D: usize> ProjectionParams<D> {
                 "nu",
                 self.nu,
                 "the viscosity must be non-negative and finite",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.viscous_theta) {
+            return bad(
+                "viscous_theta",
+                self.viscous_theta,
+                "the implicit viscous weight must be in [0, 1]",
             );
         }
         if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
@@ -238,6 +253,10 @@ pub struct ProjectionStep<const D: usize> {
     work: Vec<f64>,
     /// The Poisson solver and its caches.
     pub solver: PoissonSolver,
+    /// The implicit viscous solver and its caches.
+    pub viscous: HelmholtzSolver,
+    /// The last implicit viscous solve.
+    pub viscous_info: SolveInfo,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -307,11 +326,13 @@ impl<const D: usize> ProjectionStep<D> {
         let acc = &mut self.work_vec;
         acc.clear();
         acc.resize(n, [0.0; D]);
-        if nu > 0.0 {
+        let theta = if nu > 0.0 { params.viscous_theta } else { 0.0 };
+        if nu > 0.0 && theta < 1.0 {
             laplacian_vec_into(nl, vol, &particles.u, acc);
+            let f = (1.0 - theta) * nu;
             for a in acc.iter_mut() {
                 for v in a.iter_mut() {
-                    *v *= nu;
+                    *v *= f;
                 }
             }
         }
@@ -343,6 +364,26 @@ impl<const D: usize> ProjectionStep<D> {
                 }
                 us[k] += dt * ak;
             }
+        }
+        if theta > 0.0 {
+            // (I − θΔtν Δh) u* = r, no-slip ghosts as matrix entries
+            let mut r = std::mem::take(&mut self.work_vec2);
+            r.clone_from(&self.u_star);
+            let rule = |j: usize| match particles.role[j] {
+                crate::particles::Role::Ghost { walls, .. } => boundary.velocity_affine(walls),
+                _ => (1.0, [0.0; D]),
+            };
+            self.viscous_info = self.viscous.solve(
+                nl,
+                &particles.vol,
+                &particles.role,
+                &rule,
+                theta * dt * nu,
+                &r,
+                &mut self.u_star,
+                &params.solve,
+            )?;
+            self.work_vec2 = r;
         }
         Ok(t.elapsed().as_secs_f64())
     }
@@ -436,7 +477,8 @@ impl<const D: usize> ProjectionStep<D> {
         let gphi = &mut self.work_vec;
         gphi.resize(n, [0.0; D]);
         grad_diff_into(nl, vol, &self.phi, gphi);
-        if params.scheme == Scheme::Rotational && nu > 0.0 {
+        let rot_nu = nu * params.viscous_theta;
+        if params.scheme == Scheme::Rotational && rot_nu > 0.0 {
             self.work.resize(n, 0.0);
             div_sum_into(nl, vol, &self.u_star, &mut self.work);
         }
@@ -452,8 +494,8 @@ impl<const D: usize> ProjectionStep<D> {
                 Scheme::NonIncremental => self.phi[i],
                 Scheme::Incremental => particles.p[i] + self.phi[i],
                 Scheme::Rotational => {
-                    let rot = if nu > 0.0 {
-                        rho * nu * self.work[i]
+                    let rot = if rot_nu > 0.0 {
+                        rho * rot_nu * self.work[i]
                     } else {
                         0.0
                     };

@@ -128,6 +128,33 @@ impl Assembly {
         vol: &[f64],
         role: &[Role],
     ) -> Result<(), SolveError> {
+        self.fill(nl, vol, role, 0.0, 1.0, None)
+    }
+
+    /// Fills the values of the Helmholtz matrix `H = W + c K_σ` with `W = diag(ω_i)`: the
+    /// symmetric form of `ω_i (u_i − c Δh u_i)` when ghost values are `u_g = σ_g u_src + b_g`
+    /// (`sigma[g]`, ±1 per particle, 1 for non-ghosts; the constants `b` go to the right side).
+    /// With `σ = −1` (no-slip image across one wall) a particle's own image adds to its diagonal.
+    pub fn fill_helmholtz<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        c: f64,
+        sigma: &[f64],
+    ) -> Result<(), SolveError> {
+        self.fill(nl, vol, role, 1.0, c, Some(sigma))
+    }
+
+    fn fill<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        mass: f64,
+        c: f64,
+        sigma: Option<&[f64]>,
+    ) -> Result<(), SolveError> {
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
@@ -143,29 +170,32 @@ impl Assembly {
             &self.particle,
             &self.unknown,
         );
-        parts.into_par_iter().enumerate().for_each(|(c, vals)| {
-            let base = offsets[(c * CHUNK).min(n)];
+        parts.into_par_iter().enumerate().for_each(|(ch, vals)| {
+            let base = offsets[(ch * CHUNK).min(n)];
             vals.fill(0.0);
-            for u in c * CHUNK..((c + 1) * CHUNK).min(n) {
+            for u in ch * CHUNK..((ch + 1) * CHUNK).min(n) {
                 let p = particle[u] as usize;
                 let row = &cols[offsets[u]..offsets[u + 1]];
                 let mut dsum = 0.0;
                 for k in nl.row(p) {
                     let j = nl.indices[k] as usize;
                     let s = alias(role, j);
+                    let sg = sigma.map(|sg| sg[j]).unwrap_or(1.0);
+                    let a = c * two_d * vol[p] * vol[j] * nl.wr2[k];
                     if s == Some(p) {
+                        // own image: (σ u_p + b − u_p)
+                        dsum += a * (1.0 - sg);
                         continue;
                     }
-                    let a = two_d * vol[p] * vol[j] * nl.wr2[k];
                     dsum += a;
                     if let Some(s) = s {
                         match row.binary_search(&unknown[s]) {
-                            Ok(pos) => vals[offsets[u] - base + pos] -= a,
+                            Ok(pos) => vals[offsets[u] - base + pos] -= a * sg,
                             Err(_) => missing.store(true, Ordering::Relaxed),
                         }
                     }
                 }
-                vals[diag[u] - base] += dsum;
+                vals[diag[u] - base] += dsum + mass * vol[p];
             }
         });
         if missing.load(Ordering::Relaxed) {

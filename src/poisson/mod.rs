@@ -13,6 +13,7 @@
 
 pub mod assembly;
 pub mod direct;
+pub mod helmholtz;
 pub mod iterative;
 
 use crate::diagnostics::{alias, Components};
@@ -24,6 +25,7 @@ use std::time::Instant;
 
 pub use assembly::Assembly;
 pub use direct::Direct;
+pub use helmholtz::HelmholtzSolver;
 
 /// Which linear solver.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]

@@ -11,7 +11,7 @@
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
 use crate::flow::{
-    FlowParams, FlowReport, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
+    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
 };
 use crate::geometry::lattice;
 use crate::kernel::Weight;
@@ -69,6 +69,10 @@ pub struct CavityConfig {
     pub scheme: Scheme,
     /// Frame of the particles.
     pub motion: Motion,
+    /// Integrator of the explicit terms.
+    pub integrator: Integrator,
+    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
+    pub viscous_theta: f64,
     /// Particle shifting (Lagrangian).
     pub shifting: Option<Shifting>,
     /// Volumes.
@@ -94,6 +98,8 @@ impl Default for CavityConfig {
             weight: Weight::WendlandC2,
             scheme: Scheme::Rotational,
             motion: Motion::Eulerian,
+            integrator: Integrator::Ab2,
+            viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
             limits: TimeStepLimits::default(),
@@ -215,6 +221,7 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
     let mut projection = ProjectionParams::new(cfg.lid.abs() / cfg.re);
     projection.scheme = cfg.scheme;
+    projection.viscous_theta = cfg.viscous_theta;
     projection.solve = cfg.solve;
     projection.allowed_floating = 1;
     let mut limits = cfg.limits;
@@ -223,6 +230,7 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
         projection,
         limits,
         motion: cfg.motion,
+        integrator: cfg.integrator,
         shifting: if cfg.motion == Motion::Lagrangian {
             cfg.shifting
         } else {
@@ -363,8 +371,16 @@ pub fn ghia_errors(re: u32, ys: &[f64], u: &[f64], xs: &[f64], v: &[f64]) -> Opt
 /// progress) and may stop the run by returning an error.
 pub fn run(
     cfg: &CavityConfig,
-    mut observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
+    observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
 ) -> Result<CavityResult, Error> {
+    run_full(cfg, observer).map(|(r, _)| r)
+}
+
+/// [`run`], also returning the final simulation state (for plots of the particles).
+pub fn run_full(
+    cfg: &CavityConfig,
+    mut observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
+) -> Result<(CavityResult, Simulation<2, Walls<2>>), Error> {
     let start = Instant::now();
     let mut sim = build(cfg)?;
     let re_key = cfg.re.round() as u32;
@@ -450,5 +466,177 @@ pub fn run(
     res.xs = xs;
     res.v = v;
     res.wall_seconds = start.elapsed().as_secs_f64();
-    Ok(res)
+    Ok((res, sim))
+}
+
+/// The flat summary written to `summary.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CavitySummary {
+    /// Reynolds number.
+    pub re: f64,
+    /// Fluid particles per side.
+    pub n: usize,
+    /// Fluid particles.
+    pub particles: usize,
+    /// Ghost particles at the end.
+    pub ghosts: usize,
+    /// Steps.
+    pub steps: u64,
+    /// Time reached.
+    pub t_end: f64,
+    /// Wall-clock seconds of the run.
+    pub wall_seconds: f64,
+    /// RMS of `u − u_Ghia` (lid-speed units, interior points); `null` without a table.
+    pub rms_u: Option<f64>,
+    /// Max of `|u − u_Ghia|`.
+    pub max_u: Option<f64>,
+    /// RMS of `v − v_Ghia`.
+    pub rms_v: Option<f64>,
+    /// Max of `|v − v_Ghia|`.
+    pub max_v: Option<f64>,
+    /// Steadiness reached.
+    pub steady: bool,
+    /// Time it was first reached.
+    pub steady_time: Option<f64>,
+    /// Last `max|Δprofile|/Δt`.
+    pub steady_rate: f64,
+    /// How steadiness was judged.
+    pub steadiness: String,
+    /// Largest Theorem 4.5 ratio over all steps.
+    pub max_stability_ratio: f64,
+    /// Smallest c0 over all steps.
+    pub c0_min: f64,
+    /// Largest c0 over all steps.
+    pub c0_max: f64,
+    /// The configuration of the run.
+    pub config: CavityConfig,
+}
+
+impl CavitySummary {
+    /// Flattens a result and its configuration.
+    pub fn new(res: &CavityResult, cfg: &CavityConfig) -> Self {
+        CavitySummary {
+            re: res.re,
+            n: res.n,
+            particles: res.particles,
+            ghosts: res.ghosts,
+            steps: res.steps,
+            t_end: res.t_end,
+            wall_seconds: res.wall_seconds,
+            rms_u: res.ghia.map(|g| g.rms_u),
+            max_u: res.ghia.map(|g| g.max_u),
+            rms_v: res.ghia.map(|g| g.rms_v),
+            max_v: res.ghia.map(|g| g.max_v),
+            steady: res.steady,
+            steady_time: res.steady_time,
+            steady_rate: res.steady_rate,
+            steadiness: res.steady_rule.clone(),
+            max_stability_ratio: res.max_stability_ratio,
+            c0_min: res.c0_min,
+            c0_max: res.c0_max,
+            config: cfg.clone(),
+        }
+    }
+}
+
+/// Writes `profile_u.csv` (`y,u`), `profile_v.csv` (`x,v`) and `summary.json` into `dir`.
+pub fn write_tables(
+    dir: &std::path::Path,
+    res: &CavityResult,
+    cfg: &CavityConfig,
+) -> std::io::Result<()> {
+    use std::io::Write;
+    std::fs::create_dir_all(dir)?;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("profile_u.csv"))?);
+    writeln!(f, "y,u")?;
+    for (y, u) in res.ys.iter().zip(&res.u) {
+        writeln!(f, "{y:.6},{u:.8}")?;
+    }
+    f.flush()?;
+    let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("profile_v.csv"))?);
+    writeln!(f, "x,v")?;
+    for (x, v) in res.xs.iter().zip(&res.v) {
+        writeln!(f, "{x:.6},{v:.8}")?;
+    }
+    f.flush()?;
+    let summary = CavitySummary::new(res, cfg);
+    std::fs::write(
+        dir.join("summary.json"),
+        serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?,
+    )?;
+    Ok(())
+}
+
+/// Writes `profiles.png` (both centre-line profiles against Ghia et al.) and `particles.png`
+/// (fluid particles coloured by speed) into `dir`.
+#[cfg(feature = "cli")]
+pub fn write_plots(
+    dir: &std::path::Path,
+    res: &CavityResult,
+    sim: &Simulation<2, Walls<2>>,
+) -> Result<(), crate::plot::PlotError> {
+    use crate::plot::{line_charts, particles, Chart, Series};
+    let mut su = vec![Series::line(
+        "gpm",
+        res.u.iter().zip(&res.ys).map(|(u, y)| (*u, *y)).collect(),
+    )];
+    let mut sv = vec![Series::line(
+        "gpm",
+        res.xs.iter().zip(&res.v).map(|(x, v)| (*x, *v)).collect(),
+    )];
+    if let Some(t) = ghia(res.re.round() as u32) {
+        su.push(Series::points(
+            "Ghia et al. 1982",
+            t.u_vertical.iter().map(|(y, u)| (*u, *y)).collect(),
+        ));
+        sv.push(Series::points("Ghia et al. 1982", t.v_horizontal.clone()));
+    }
+    let err = res
+        .ghia
+        .map(|g| format!(" (RMS {:.2}%)", 100.0 * g.rms_u))
+        .unwrap_or_default();
+    let errv = res
+        .ghia
+        .map(|g| format!(" (RMS {:.2}%)", 100.0 * g.rms_v))
+        .unwrap_or_default();
+    line_charts(
+        &dir.join("profiles.png"),
+        1400,
+        650,
+        &[
+            (
+                Chart {
+                    title: format!("u along x = 0.5, Re {} n {}{err}", res.re, res.n),
+                    x_label: "u / U".into(),
+                    y_label: "y".into(),
+                    ..Default::default()
+                },
+                su,
+            ),
+            (
+                Chart {
+                    title: format!("v along y = 0.5, Re {} n {}{errv}", res.re, res.n),
+                    x_label: "x".into(),
+                    y_label: "v / U".into(),
+                    ..Default::default()
+                },
+                sv,
+            ),
+        ],
+    )?;
+    let p = &sim.particles;
+    let (xs, speed): (Vec<[f64; 2]>, Vec<f64>) = (0..p.len())
+        .filter(|&i| p.role[i].is_fluid())
+        .map(|i| (p.x[i], crate::math::norm2(&p.u[i]).sqrt()))
+        .unzip();
+    particles(
+        &dir.join("particles.png"),
+        &format!("Cavity Re {} t = {:.1}: speed", res.re, res.t_end),
+        &xs,
+        &speed,
+        [0.0, 0.0],
+        [1.0, 1.0],
+        "|u| / U",
+        800,
+    )
 }

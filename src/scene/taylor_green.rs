@@ -7,7 +7,7 @@
 use crate::boundary::PeriodicBox;
 use crate::error::{Error, InputError};
 use crate::flow::{
-    FlowParams, FlowReport, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
+    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
 };
 use crate::geometry::lattice;
 use crate::kernel::Weight;
@@ -39,6 +39,10 @@ pub struct TaylorGreenConfig {
     pub scheme: Scheme,
     /// Frame.
     pub motion: Motion,
+    /// Integrator of the explicit terms.
+    pub integrator: Integrator,
+    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
+    pub viscous_theta: f64,
     /// Shifting (Lagrangian).
     pub shifting: Option<Shifting>,
     /// Volumes.
@@ -62,6 +66,8 @@ impl Default for TaylorGreenConfig {
             weight: Weight::WendlandC2,
             scheme: Scheme::Rotational,
             motion: Motion::Eulerian,
+            integrator: Integrator::Ab2,
+            viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
             limits: TimeStepLimits::default(),
@@ -137,6 +143,7 @@ pub fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, E
     let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
     let mut projection = ProjectionParams::new(cfg.amplitude.abs() / cfg.re);
     projection.scheme = cfg.scheme;
+    projection.viscous_theta = cfg.viscous_theta;
     projection.solve = cfg.solve;
     projection.allowed_floating = 1;
     let mut limits = cfg.limits;
@@ -145,6 +152,7 @@ pub fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, E
         projection,
         limits,
         motion: cfg.motion,
+        integrator: cfg.integrator,
         shifting: if cfg.motion == Motion::Lagrangian {
             cfg.shifting
         } else {
