@@ -359,22 +359,25 @@ pub fn rel_diff(a: f64, b: f64) -> f64 {
 /// same on every machine and every run.
 pub fn deterministic_runner(cases: u32, seed: u8) -> proptest::test_runner::TestRunner {
     use proptest::test_runner::{Config, RngAlgorithm, RngSeed, TestRng, TestRunner};
-    let mut c = Config::default();
-    c.cases = cases;
-    c.max_local_rejects = 65_536;
-    c.max_global_rejects = 1024;
-    c.max_flat_map_regens = 1_000_000;
-    c.failure_persistence = None;
-    c.source_file = None;
-    c.test_name = None;
-    c.fork = false;
-    c.timeout = 0;
-    c.max_shrink_time = 0;
-    c.max_shrink_iters = 256;
-    c.max_default_size_range = 100;
-    c.verbose = 0;
-    c.rng_algorithm = RngAlgorithm::ChaCha;
-    c.rng_seed = RngSeed::Fixed(seed as u64);
+    let c = Config {
+        cases,
+        max_local_rejects: 65_536,
+        max_global_rejects: 1024,
+        max_flat_map_regens: 1_000_000,
+        failure_persistence: None,
+        source_file: None,
+        test_name: None,
+        fork: false,
+        timeout: 0,
+        max_shrink_time: 0,
+        max_shrink_iters: 256,
+        max_default_size_range: 100,
+        verbose: 0,
+        rng_algorithm: RngAlgorithm::ChaCha,
+        rng_seed: RngSeed::Fixed(seed as u64),
+        // every other field (the result cache) keeps its built-in default
+        ..Config::default()
+    };
     let rng = TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]);
     TestRunner::new_with_rng(c, rng)
 }
