@@ -1,0 +1,602 @@
+//! The discrete Poisson problem (MISSION §3, Imoto 2019 Thm 4.1): the assembled matrix is the
+//! definition and is SPD exactly when h-connectivity holds; a detached cluster is reported with
+//! exactly its particles before any solve; floating (pure Neumann) components are solved with
+//! zero mean; Cholesky and CG agree within the bound their residuals give; a manufactured
+//! solution converges at the order the consistency analysis predicts; CG failure carries its
+//! residuals.
+
+mod common;
+
+use common::{dirichlet_box, mirror_box, periodic_box, Family, Spec, Volumes};
+use gpm::diagnostics::{connectivity, Components};
+use gpm::error::SolveError;
+use gpm::geometry::lattice_weight_sum;
+use gpm::kernel::{Kernel, Weight};
+use gpm::neighbors::NeighborList;
+use gpm::operators::{div_sum, laplacian};
+use gpm::particles::Role;
+use gpm::poisson::{Assembly, PoissonSolver, SolveInfo, SolveParams, SolverKind};
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use std::f64::consts::PI;
+
+/// `K` of MISSION §3 from its definition, by brute force over all pairs:
+/// `K_ii = ω_i Σ_{k≠i} ω_k a_ik` (every neighbour, band included), `K_ij = −ω_i ω_j a_ij`,
+/// `a_ij = 2d w_h(r_ij)/r_ij²`; a ghost stands for its source (its entry goes to the source's
+/// column; a particle's own image cancels). Unknowns are the fluid particles in index order.
+fn dense_k<const D: usize>(f: &Family<D>) -> DMatrix<f64> {
+    let cfg = f.nl.config();
+    let k = Kernel::<D>::new(cfg.weight, cfg.h);
+    let fluid = f.fluid();
+    let mut unk = vec![usize::MAX; f.len()];
+    for (u, &i) in fluid.iter().enumerate() {
+        unk[i] = u;
+    }
+    let n = fluid.len();
+    let mut m = DMatrix::<f64>::zeros(n, n);
+    for &i in &fluid {
+        for j in 0..f.len() {
+            if j == i {
+                continue;
+            }
+            let mut r2 = 0.0;
+            for a in 0..D {
+                let mut d = f.x[j][a] - f.x[i][a];
+                let l = cfg.periodic.len[a];
+                if l > 0.0 {
+                    d -= l * (d / l).round();
+                }
+                r2 += d * d;
+            }
+            if r2 >= cfg.h * cfg.h {
+                continue;
+            }
+            let src = match f.role[j] {
+                Role::Fluid => Some(j),
+                Role::Ghost { source, .. } => Some(source as usize),
+                Role::Dirichlet => None,
+            };
+            if src == Some(i) {
+                continue;
+            }
+            let a = 2.0 * D as f64 * k.w_h(r2.sqrt()) / r2;
+            let c = f.vol[i] * f.vol[j] * a;
+            m[(unk[i], unk[i])] += c;
+            if let Some(s) = src {
+                m[(unk[i], unk[s])] -= c;
+            }
+        }
+    }
+    m
+}
+
+/// The crate's assembled `K` as a dense matrix.
+fn assembled<const D: usize>(f: &Family<D>) -> (Assembly, DMatrix<f64>) {
+    let mut a = Assembly::default();
+    a.update_pattern(&f.nl, &f.role);
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    let n = a.n();
+    let mut m = DMatrix::<f64>::zeros(n, n);
+    for u in 0..n {
+        for k in a.offsets[u]..a.offsets[u + 1] {
+            m[(u, a.cols[k] as usize)] = a.values[k];
+        }
+    }
+    (a, m)
+}
+
+fn max_abs(m: &DMatrix<f64>) -> f64 {
+    m.iter().fold(0.0f64, |s, v| s.max(v.abs()))
+}
+
+fn solve<const D: usize>(
+    f: &Family<D>,
+    comps: &Components,
+    rhs: &[f64],
+    solver: SolverKind,
+) -> (Vec<f64>, SolveInfo) {
+    let mut u = vec![0.0; f.len()];
+    let params = SolveParams {
+        solver,
+        rel_tol: 1e-13,
+        warm_start: false,
+        ..SolveParams::default()
+    };
+    let info = PoissonSolver::new()
+        .solve(&f.nl, &f.vol, &f.role, comps, rhs, &mut u, &params)
+        .unwrap_or_else(|e| panic!("{:?} {solver:?}: {e}", f.spec));
+    (u, info)
+}
+
+fn fluid_vec<const D: usize>(f: &Family<D>, u: &[f64]) -> DVector<f64> {
+    let fluid = f.fluid();
+    DVector::from_iterator(fluid.len(), fluid.iter().map(|&i| u[i]))
+}
+
+#[test]
+fn assembled_matrix_is_the_definition_symmetric_and_positive_definite() {
+    let rv = Volumes::Random { spread: 4.0 };
+    check_spd(&dirichlet_box::<2>(
+        Spec::lattice(10, 2.4, Weight::WendlandC2)
+            .jittered(0.4, 1)
+            .volumes(rv),
+    ));
+    check_spd(&dirichlet_box::<2>(Spec::lattice(
+        9,
+        1.6,
+        Weight::CubicSpline,
+    )));
+    check_spd(&dirichlet_box::<2>(
+        Spec::lattice(10, 3.1, Weight::Poly { p: 2, m: 3 })
+            .jittered(0.3, 2)
+            .volumes(Volumes::NumberDensity),
+    ));
+    check_spd(&dirichlet_box::<3>(
+        Spec::lattice(5, 1.8, Weight::WendlandC4)
+            .jittered(0.35, 3)
+            .volumes(rv),
+    ));
+}
+
+/// Theorem 4.1 on an h-connected family: `K` equals its definition, is symmetric, every
+/// eigenvalue is positive and Cholesky (nalgebra's dense one and the crate's sparse one)
+/// succeeds; CG, sparse Cholesky and a dense solve of the independently built `K` agree within
+/// `(‖r₁‖ + ‖r₂‖)/λ_min` (the bound their residuals give).
+fn check_spd<const D: usize>(f: &Family<D>) {
+    let comps = connectivity(&f.nl, &f.role);
+    assert!(comps.is_h_connected(), "{:?}", f.spec);
+    assert!(comps.check(0).is_ok());
+    let (_, k) = assembled(f);
+    let kd = dense_k(f);
+    let scale = max_abs(&kd);
+    assert!(
+        max_abs(&(&k - &kd)) <= 1e-13 * scale,
+        "{:?}: assembled K differs from the definition by {:e}",
+        f.spec,
+        max_abs(&(&k - &kd))
+    );
+    assert!(
+        max_abs(&(&k - k.transpose())) <= 1e-14 * scale,
+        "K not symmetric"
+    );
+    let eig = SymmetricEigen::new(kd.clone());
+    let lmin = eig.eigenvalues.min();
+    let lmax = eig.eigenvalues.max();
+    assert!(
+        lmin > 1e-10 * lmax,
+        "{:?}: λ_min = {lmin:e}, λ_max = {lmax:e}",
+        f.spec
+    );
+    assert!(kd.clone().cholesky().is_some());
+
+    // solves
+    let psi = f.random_vector(7);
+    let rhs = div_sum(&f.nl, &f.vol, &psi);
+    let (u_ch, info_ch) = solve(f, &comps, &rhs, SolverKind::Cholesky);
+    let (u_cg, info_cg) = solve(f, &comps, &rhs, SolverKind::Cg);
+    assert_eq!(info_ch.solver, SolverKind::Cholesky);
+    assert_eq!(info_cg.solver, SolverKind::Cg);
+    assert!(info_cg.iters > 0);
+    let fluid = f.fluid();
+    let b = DVector::from_iterator(fluid.len(), fluid.iter().map(|&i| f.vol[i] * rhs[i]));
+    let x_dense = kd.clone().cholesky().unwrap().solve(&b);
+    let x_ch = fluid_vec(f, &u_ch);
+    let x_cg = fluid_vec(f, &u_cg);
+    let r_ch = (&kd * &x_ch - &b).norm();
+    let r_cg = (&kd * &x_cg - &b).norm();
+    let r_de = (&kd * &x_dense - &b).norm();
+    // the solver's own report of its residual is the true residual
+    assert!((info_ch.abs_residual - r_ch).abs() <= 1e-3 * r_ch + 1e-14 * b.norm());
+    assert!((info_cg.abs_residual - r_cg).abs() <= 1e-3 * r_cg + 1e-14 * b.norm());
+    assert!(r_cg <= 1e-12 * b.norm(), "CG residual {r_cg:e}");
+    assert!(r_ch <= 1e-12 * b.norm(), "Cholesky residual {r_ch:e}");
+    let slack = 1.0 + 1e-6;
+    assert!((&x_ch - &x_cg).norm() <= slack * (r_ch + r_cg) / lmin + 1e-15 * x_ch.norm());
+    assert!((&x_ch - &x_dense).norm() <= slack * (r_ch + r_de) / lmin + 1e-15 * x_ch.norm());
+    // Dirichlet values are zero, and the solution is not trivial
+    for i in f.dirichlet() {
+        assert_eq!(u_ch[i], 0.0);
+        assert_eq!(u_cg[i], 0.0);
+    }
+    assert!(x_ch.norm() > 0.0);
+}
+
+/// Lattice coordinates that are exact in binary: n = 8 (Δx = 1/8), h = 2Δx = 1/4, a band of
+/// three cells: particles at −5/16 + k/8.
+fn dyadic_box() -> Family<2> {
+    let f = dirichlet_box::<2>(Spec::lattice(8, 2.0, Weight::WendlandC2));
+    assert_eq!(f.spec.h(), 0.25);
+    assert!(f
+        .x
+        .iter()
+        .all(|p| p.iter().all(|&c| ((c + 0.3125) * 8.0).fract() == 0.0)));
+    f
+}
+
+/// Appends fluid particles and rebuilds the neighbour list.
+fn with_extra(f: &Family<2>, extra: &[[f64; 2]]) -> Family<2> {
+    let mut g = f.clone();
+    for p in extra {
+        g.x.push(*p);
+        g.vol.push(f.spec.dx().powi(2));
+        g.role.push(Role::Fluid);
+    }
+    g.nl = NeighborList::build(*f.nl.config(), &g.x).unwrap();
+    g
+}
+
+#[test]
+fn detached_cluster_is_reported_with_exactly_its_particles() {
+    let base = dyadic_box();
+    let n0 = base.len();
+    let h = base.spec.h();
+    // the base set is h-connected
+    assert!(connectivity(&base.nl, &base.role).check(0).is_ok());
+    // a cluster of three far away (hops of 0.6 h among themselves), one isolated particle, a
+    // pair exactly h from the outermost band particle (1.3125, 0.4375) — strictly not a
+    // neighbour, so cut off — and a pair 0.9 h from the band (anchored: not reported)
+    let extra = [
+        [3.0, 3.0],
+        [3.0 + 0.6 * h, 3.0],
+        [3.0 + 0.6 * h, 3.0 + 0.6 * h],
+        [-4.0, 2.0],
+        [1.3125 + 0.25, 0.4375],
+        [1.3125 + 0.25 + 0.125, 0.4375],
+        [-0.3125 - 0.9 * h, 0.6875],
+        [-0.3125 - 1.5 * h, 0.6875],
+    ];
+    let f = with_extra(&base, &extra);
+    let comps = connectivity(&f.nl, &f.role);
+    assert!(!comps.is_h_connected());
+    assert_eq!(comps.isolated, vec![n0 + 3]);
+    let err = comps
+        .check(0)
+        .expect_err("a cut-off cluster must be reported");
+    let want: Vec<usize> = vec![n0, n0 + 1, n0 + 2, n0 + 3, n0 + 4, n0 + 5];
+    assert_eq!(err.offending, want);
+    assert_eq!(err.components, 3);
+    assert_eq!(err.isolated, 1);
+    // the message names them
+    let msg = err.to_string();
+    assert!(msg.contains(&format!("{}", n0 + 4)), "{msg}");
+    // the main fluid and the pair near the band are anchored
+    for i in base.fluid() {
+        assert!(comps.anchored[comps.label[i] as usize]);
+    }
+    assert!(comps.anchored[comps.label[n0 + 6] as usize]);
+    assert_eq!(comps.label[n0 + 6], comps.label[n0 + 7]);
+    let s = comps.summary();
+    assert_eq!((s.floating, s.isolated), (3, 1));
+    // allowing floating components does not excuse the isolated particle
+    let err = comps.check(5).unwrap_err();
+    assert_eq!(err.offending, vec![n0 + 3]);
+
+    // why it must be caught before a solve: K is singular on each cut-off component (Thm 4.1
+    // needs h-connectivity); the constant vector on a component is in its null space
+    let kd = dense_k(&f);
+    let fluid = f.fluid();
+    for members in [vec![n0, n0 + 1, n0 + 2], vec![n0 + 4, n0 + 5], vec![n0 + 3]] {
+        let v = DVector::from_iterator(
+            fluid.len(),
+            fluid
+                .iter()
+                .map(|i| if members.contains(i) { 1.0 } else { 0.0 }),
+        );
+        assert!((&kd * &v).norm() <= 1e-13 * max_abs(&kd), "{members:?}");
+    }
+    assert!(kd.cholesky().is_none());
+}
+
+#[test]
+fn a_cluster_farther_than_h_in_3d_is_reported() {
+    let base = dirichlet_box::<3>(Spec::lattice(4, 1.7, Weight::CubicSpline).jittered(0.3, 5));
+    let n0 = base.len();
+    let h = base.spec.h();
+    let mut f = base.clone();
+    for p in [[5.0, 5.0, 5.0], [5.0, 5.0, 5.0 + 0.5 * h]] {
+        f.x.push(p);
+        f.vol.push(base.vol[0]);
+        f.role.push(Role::Fluid);
+    }
+    f.nl = NeighborList::build(*base.nl.config(), &f.x).unwrap();
+    let err = connectivity(&f.nl, &f.role).check(0).unwrap_err();
+    assert_eq!(err.offending, vec![n0, n0 + 1]);
+    assert_eq!(err.isolated, 0);
+}
+
+#[test]
+fn floating_components_have_zero_mean_and_cholesky_matches_cg() {
+    for f in [
+        mirror_box::<2>(
+            Spec::lattice(12, 2.5, Weight::WendlandC2)
+                .jittered(0.4, 11)
+                .volumes(Volumes::Random { spread: 3.0 }),
+        ),
+        periodic_box::<2>(Spec::lattice(12, 2.2, Weight::CubicSpline).jittered(0.3, 12)),
+    ] {
+        check_floating(&f);
+    }
+    check_floating(&mirror_box::<3>(
+        Spec::lattice(5, 1.9, Weight::WendlandC2)
+            .jittered(0.3, 13)
+            .volumes(Volumes::NumberDensity),
+    ));
+}
+
+fn check_floating<const D: usize>(f: &Family<D>) {
+    let comps = connectivity(&f.nl, &f.role);
+    assert_eq!(comps.len(), 1);
+    assert_eq!(comps.floating(), vec![0]);
+    assert!(comps.check(1).is_ok());
+    // the paper's condition fails: every fluid particle is reported under check(0)
+    assert_eq!(comps.check(0).unwrap_err().offending, f.fluid());
+
+    let psi = f.random_vector(3);
+    let rhs = div_sum(&f.nl, &f.vol, &psi);
+    let (u_ch, i_ch) = solve(f, &comps, &rhs, SolverKind::Cholesky);
+    let (u_cg, i_cg) = solve(f, &comps, &rhs, SolverKind::Cg);
+    let fluid = f.fluid();
+    for (u, info) in [(&u_ch, &i_ch), (&u_cg, &i_cg)] {
+        assert_eq!(info.floating, 1);
+        // the sum-form source already sums to zero (discrete Gauss theorem)
+        assert!(info.compatibility_defect < 1e-13, "{info:?}");
+        // zero ω-weighted mean
+        let m: f64 = fluid.iter().map(|&i| f.vol[i] * u[i]).sum();
+        let a: f64 = fluid.iter().map(|&i| f.vol[i] * u[i].abs()).sum();
+        assert!(a > 0.0 && m.abs() <= 1e-13 * a, "mean {m:e} of {a:e}");
+        // ghosts carry their source's value
+        for (i, r) in f.role.iter().enumerate() {
+            if let Role::Ghost { source, .. } = r {
+                assert_eq!(u[i], u[*source as usize]);
+            }
+        }
+        // the full (singular) system is solved: −Δh u = rhs on every fluid row
+        let lap = laplacian(&f.nl, &f.vol, u);
+        let rn: f64 = fluid
+            .iter()
+            .map(|&i| (lap[i] + rhs[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let bn: f64 = fluid.iter().map(|&i| rhs[i].powi(2)).sum::<f64>().sqrt();
+        assert!(rn <= 1e-10 * bn, "residual {rn:e} of {bn:e}");
+    }
+    // agreement: K e = r_ch − r_cg; on the complement of the constants ‖e‖ ≤ ‖Δr‖/λ₂, and the
+    // ω-weighted mean removal P = I − 1ωᵀ/Σω has ‖P‖₂ ≤ 1 + √n ‖ω‖/Σω
+    let kd = dense_k(f);
+    let eig = SymmetricEigen::new(kd.clone());
+    let mut ev: Vec<f64> = eig.eigenvalues.iter().copied().collect();
+    ev.sort_by(f64::total_cmp);
+    assert!(
+        ev[0].abs() <= 1e-12 * ev[ev.len() - 1],
+        "one zero eigenvalue: {}",
+        ev[0]
+    );
+    let l2 = ev[1];
+    assert!(l2 > 1e-10 * ev[ev.len() - 1], "only one null vector");
+    let w = DVector::from_iterator(fluid.len(), fluid.iter().map(|&i| f.vol[i]));
+    let pnorm = 1.0 + (fluid.len() as f64).sqrt() * w.norm() / w.sum();
+    let b = DVector::from_iterator(fluid.len(), fluid.iter().map(|&i| f.vol[i] * rhs[i]));
+    let x_ch = fluid_vec(f, &u_ch);
+    let x_cg = fluid_vec(f, &u_cg);
+    let dr = (&kd * (&x_ch - &x_cg)).norm();
+    assert!(dr <= 2e-12 * b.norm());
+    assert!(
+        (&x_ch - &x_cg).norm() <= (1.0 + 1e-6) * pnorm * dr / l2 + 1e-14 * x_ch.norm(),
+        "Cholesky and CG differ by {:e}",
+        (&x_ch - &x_cg).norm()
+    );
+}
+
+#[test]
+fn incompatible_sources_are_projected_and_reported() {
+    // a source that does not sum to zero on a floating component: the solver removes its
+    // ω-weighted mean, reports the defect, and solves −Δh u = rhs − mean
+    let f = mirror_box::<2>(
+        Spec::lattice(10, 2.5, Weight::WendlandC2)
+            .jittered(0.3, 21)
+            .volumes(Volumes::Random { spread: 2.0 }),
+    );
+    let comps = connectivity(&f.nl, &f.role);
+    let rhs: Vec<f64> = f.random_scalar(8).iter().map(|v| v + 0.5).collect();
+    let fluid = f.fluid();
+    let sw: f64 = fluid.iter().map(|&i| f.vol[i]).sum();
+    let mean = fluid.iter().map(|&i| f.vol[i] * rhs[i]).sum::<f64>() / sw;
+    let defect = (mean * sw).abs()
+        / fluid
+            .iter()
+            .map(|&i| (f.vol[i] * rhs[i]).abs())
+            .sum::<f64>();
+    for kind in [SolverKind::Cholesky, SolverKind::Cg] {
+        let (u, info) = solve(&f, &comps, &rhs, kind);
+        assert!(
+            (info.compatibility_defect - defect).abs() <= 1e-12 * defect,
+            "{info:?}"
+        );
+        let lap = laplacian(&f.nl, &f.vol, &u);
+        for &i in &fluid {
+            assert!(
+                (-lap[i] - (rhs[i] - mean)).abs() <= 1e-9 * (1.0 + rhs[i].abs()),
+                "{kind:?} row {i}"
+            );
+        }
+    }
+}
+
+/// `u = Π_a sin⁴(π x_a)` in the unit box, 0 outside: C³ across the boundary and exactly zero on
+/// the band, so the band values are exact. Returns (u, ∇u, Δu).
+fn exact<const D: usize>(x: &[f64; D]) -> (f64, [f64; D], f64) {
+    if !x.iter().all(|&c| c > 0.0 && c < 1.0) {
+        return (0.0, [0.0; D], 0.0);
+    }
+    let s: [f64; D] = std::array::from_fn(|a| (PI * x[a]).sin());
+    let c: [f64; D] = std::array::from_fn(|a| (PI * x[a]).cos());
+    let g1: [f64; D] = std::array::from_fn(|a| s[a].powi(4)); // factor values
+    let d1: [f64; D] = std::array::from_fn(|a| 4.0 * PI * s[a].powi(3) * c[a]);
+    let d2: [f64; D] =
+        std::array::from_fn(|a| 4.0 * PI * PI * (3.0 * s[a] * s[a] * c[a] * c[a] - s[a].powi(4)));
+    let prod_except = |b: usize| -> f64 { (0..D).filter(|&a| a != b).map(|a| g1[a]).product() };
+    let u = g1.iter().product();
+    let grad = std::array::from_fn(|b| d1[b] * prod_except(b));
+    let lap = (0..D).map(|b| d2[b] * prod_except(b)).sum();
+    (u, grad, lap)
+}
+
+/// Relative ℓ2(Ω) error of the discrete solution on a lattice with the `S = 1` volumes
+/// `ω = 1 / Σ_{lattice} w_h` (uniform, so every fluid row sees a full symmetric lattice ball),
+/// for the point source `−Δu(x_i)` or the paper's divergence-form source `∇̂h·f̂` with
+/// `f = −∇u`.
+fn mms_error<const D: usize>(n: usize, hdx: f64, divergence_form: bool) -> f64 {
+    let spec = Spec::lattice(n, hdx, Weight::WendlandC2);
+    let mut f = dirichlet_box::<D>(spec);
+    let k = Kernel::<D>::new(spec.weight, spec.h());
+    let omega = 1.0 / lattice_weight_sum(&k, spec.dx());
+    f.vol.iter_mut().for_each(|v| *v = omega);
+    let comps = connectivity(&f.nl, &f.role);
+    assert!(comps.check(0).is_ok());
+    let rhs: Vec<f64> = if divergence_form {
+        let fl: Vec<[f64; D]> = f.x.iter().map(|x| exact(x).1.map(|g| -g)).collect();
+        div_sum(&f.nl, &f.vol, &fl)
+    } else {
+        f.x.iter().map(|x| -exact(x).2).collect()
+    };
+    let kind = if D == 2 {
+        SolverKind::Cholesky
+    } else {
+        SolverKind::Cg
+    };
+    let (u, _) = solve(&f, &comps, &rhs, kind);
+    let fluid = f.fluid();
+    let e2: f64 = fluid
+        .iter()
+        .map(|&i| f.vol[i] * (u[i] - exact(&f.x[i]).0).powi(2))
+        .sum();
+    let u2: f64 = fluid
+        .iter()
+        .map(|&i| f.vol[i] * exact(&f.x[i]).0.powi(2))
+        .sum();
+    (e2 / u2).sqrt()
+}
+
+/// Second order: the truncation error is O(h²) on the symmetric lattice (MISSION §2 Taylor
+/// argument, S = 1) and `−Δh` is stable (Thm 4.5 / discrete maximum principle), so the error is
+/// `C h² (1 + O(h²))`: the observed order on the finest pair is within 0.2 of 2.
+fn assert_order_two(ns: &[usize], errs: &[f64], what: &str) {
+    let orders: Vec<f64> = (1..ns.len())
+        .map(|m| (errs[m - 1] / errs[m]).ln() / (ns[m] as f64 / ns[m - 1] as f64).ln())
+        .collect();
+    eprintln!("{what}: errors {errs:?}, orders {orders:?}");
+    let last = *orders.last().unwrap();
+    assert!(
+        (last - 2.0).abs() < 0.2,
+        "{what}: orders {orders:?}, errors {errs:?}"
+    );
+    assert!(errs.windows(2).all(|w| w[1] < w[0]));
+}
+
+#[test]
+fn manufactured_solution_converges_at_second_order_2d() {
+    let ns = [16, 32, 64];
+    for div in [false, true] {
+        let errs: Vec<f64> = ns.iter().map(|&n| mms_error::<2>(n, 2.0, div)).collect();
+        assert_order_two(&ns, &errs, &format!("2D MMS (divergence form: {div})"));
+    }
+}
+
+#[test]
+fn manufactured_solution_converges_at_second_order_3d() {
+    let ns = [8, 12, 16];
+    let errs: Vec<f64> = ns.iter().map(|&n| mms_error::<3>(n, 1.5, true)).collect();
+    assert_order_two(&ns, &errs, "3D MMS (divergence form)");
+}
+
+#[test]
+fn cg_failure_carries_its_residuals() {
+    let f = dirichlet_box::<2>(
+        Spec::lattice(16, 2.5, Weight::WendlandC2)
+            .jittered(0.3, 31)
+            .volumes(Volumes::Random { spread: 2.0 }),
+    );
+    let comps = connectivity(&f.nl, &f.role);
+    let rhs = div_sum(&f.nl, &f.vol, &f.random_vector(4));
+    let fluid = f.fluid();
+    let bnorm = fluid
+        .iter()
+        .map(|&i| (f.vol[i] * rhs[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let mut u = vec![0.0; f.len()];
+    let params = SolveParams {
+        solver: SolverKind::Cg,
+        rel_tol: 1e-14,
+        max_iters: 3,
+        warm_start: false,
+        ..SolveParams::default()
+    };
+    match PoissonSolver::new().solve(&f.nl, &f.vol, &f.role, &comps, &rhs, &mut u, &params) {
+        Err(SolveError::NoConvergence {
+            iters,
+            abs_residual,
+            rel_residual,
+        }) => {
+            assert_eq!(iters, 3);
+            assert!(abs_residual.is_finite() && abs_residual > 0.0);
+            assert!(rel_residual > 1e-14 && rel_residual < 1.0);
+            assert!((rel_residual - abs_residual / bnorm).abs() <= 1e-12 * rel_residual);
+            let msg = SolveError::NoConvergence {
+                iters,
+                abs_residual,
+                rel_residual,
+            }
+            .to_string();
+            assert!(msg.contains('3'), "{msg}");
+        }
+        other => panic!("expected NoConvergence, got {other:?}"),
+    }
+    // the same problem converges with the default limit, and reports a residual below rel_tol
+    let params = SolveParams {
+        max_iters: 10_000,
+        rel_tol: 1e-10,
+        ..params
+    };
+    let info = PoissonSolver::new()
+        .solve(&f.nl, &f.vol, &f.role, &comps, &rhs, &mut u, &params)
+        .unwrap();
+    assert!(info.iters > 3);
+    assert!(info.rel_residual <= 1e-9, "{info:?}");
+}
+
+#[test]
+fn symbolic_factorisation_is_reused_while_the_pattern_is_unchanged() {
+    let f = dirichlet_box::<2>(Spec::lattice(12, 2.5, Weight::CubicSpline).jittered(0.3, 41));
+    let comps = connectivity(&f.nl, &f.role);
+    let rhs = div_sum(&f.nl, &f.vol, &f.random_vector(1));
+    let params = SolveParams {
+        solver: SolverKind::Cholesky,
+        ..SolveParams::default()
+    };
+    let mut solver = PoissonSolver::new();
+    let mut u1 = vec![0.0; f.len()];
+    let i1 = solver
+        .solve(&f.nl, &f.vol, &f.role, &comps, &rhs, &mut u1, &params)
+        .unwrap();
+    assert!(i1.pattern_rebuilt && !i1.reused_symbolic);
+    // new volumes: same pattern, new values → symbolic reused, numeric redone, same answer as
+    // a fresh solver
+    let vol2: Vec<f64> = f
+        .vol
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v * (1.0 + 0.1 * (i % 3) as f64))
+        .collect();
+    let mut u2 = vec![0.0; f.len()];
+    let i2 = solver
+        .solve(&f.nl, &vol2, &f.role, &comps, &rhs, &mut u2, &params)
+        .unwrap();
+    assert!(!i2.pattern_rebuilt && i2.reused_symbolic && !i2.reused_numeric);
+    let mut u3 = vec![0.0; f.len()];
+    PoissonSolver::new()
+        .solve(&f.nl, &vol2, &f.role, &comps, &rhs, &mut u3, &params)
+        .unwrap();
+    for i in 0..f.len() {
+        assert!((u2[i] - u3[i]).abs() <= 1e-12 * (1.0 + u3[i].abs()));
+    }
+}
