@@ -145,6 +145,9 @@ pub enum Error {
     /// The Poisson solve failed.
     #[error(transparent)]
     Solve(#[from] SolveError),
+    /// Recording or replaying a run failed (or the run was interrupted on request).
+    #[error(transparent)]
+    Record(#[from] crate::record::RecordError),
 }
 
 /// `Result` with the crate's [`Error`].

@@ -18,6 +18,7 @@ pub mod particles;
 pub mod plot;
 pub mod poisson;
 pub mod projection;
+pub mod record;
 pub mod reference;
 pub mod sampling;
 pub mod scene;

@@ -1,0 +1,419 @@
+//! `gpm`: run scenes with MCAP recording, and replay recorded runs.
+//!
+//! ```text
+//! gpm run cavity --re 100 --n 50 --out results/cavity      # writes results/cavity/run.mcap
+//! gpm run taylor-green --n 32 --t-end 0.5 --record full --record-every 10 --out results/tg
+//! gpm replay results/cavity/run.mcap --csv steps.csv --plot steps.png
+//! gpm replay results/tg/run.mcap --vtk results/tg/vtk --rerun
+//! ```
+//!
+//! Errors are printed as one line (with their causes) and the exit status is non-zero; Ctrl-C
+//! stops a run after the current step and finishes the MCAP file (exit status 130).
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use gpm::flow::Motion;
+use gpm::kernel::Weight;
+use gpm::projection::Scheme;
+use gpm::record::replay::{export_vtk, Replay};
+use gpm::record::rerun::rerun_file;
+use gpm::record::{ChunkCompression, RecordError, RecordLevel, Recorder, RecorderOptions};
+use gpm::scene::{cavity, taylor_green};
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "gpm",
+    version,
+    about = "Incompressible particle flows with the generalized particle method"
+)]
+struct Cli {
+    /// Rayon worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run a scene and record it to DIR/run.mcap.
+    Run(RunArgs),
+    /// Summarise, plot, export or re-run a recorded MCAP file (complete or cut).
+    Replay(ReplayArgs),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum SceneName {
+    /// Lid-driven cavity (compared with Ghia et al. 1982).
+    Cavity,
+    /// Periodic Taylor–Green vortex (exact solution).
+    TaylorGreen,
+}
+
+#[derive(Args, Debug)]
+struct RunArgs {
+    /// Scene.
+    scene: SceneName,
+    /// Full scene configuration (JSON, unknown keys rejected); the flags below override it.
+    /// A `/config` message's `{"scene", "config"}` object is accepted too.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Reynolds number.
+    #[arg(long)]
+    re: Option<f64>,
+    /// Particles per side.
+    #[arg(long)]
+    n: Option<usize>,
+    /// End time.
+    #[arg(long)]
+    t_end: Option<f64>,
+    /// Pressure scheme: non-incremental, incremental, rotational.
+    #[arg(long)]
+    scheme: Option<Scheme>,
+    /// Reference weight: cubic, wendland2, wendland4, polyP-M.
+    #[arg(long)]
+    weight: Option<Weight>,
+    /// Influence radius over particle spacing.
+    #[arg(long)]
+    h_ratio: Option<f64>,
+    /// Particle frame: lagrangian or eulerian.
+    #[arg(long)]
+    motion: Option<Motion>,
+    /// What to record: none, diagnostics (every step) or full (plus particles and projection
+    /// inputs every --record-every steps).
+    #[arg(long, default_value = "diagnostics")]
+    record: RecordLevel,
+    /// Snapshot interval k of --record full.
+    #[arg(long, default_value_t = 10)]
+    record_every: u64,
+    /// Close a chunk every this many steps (a killed run loses at most these).
+    #[arg(long, default_value_t = 1)]
+    flush_every: u64,
+    /// Chunk compression: zstd or none.
+    #[arg(long, default_value = "zstd")]
+    compression: ChunkCompression,
+    /// Output directory (run.mcap is written there).
+    #[arg(long, default_value = ".")]
+    out: PathBuf,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(Args, Debug)]
+struct ReplayArgs {
+    /// The MCAP file.
+    file: PathBuf,
+    /// Export the diagnostics table as CSV.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Plot the main time series into a PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Write the particle snapshots as VTK files (ParaView) into this directory.
+    #[arg(long)]
+    vtk: Option<PathBuf>,
+    /// Re-run every recorded projection input and report the largest differences.
+    #[arg(long)]
+    rerun: bool,
+    /// Print the summary as JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match real_main(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn real_main(cli: Cli) -> Result<ExitCode> {
+    if let Some(t) = cli.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+            .context("setting the thread count")?;
+    }
+    match cli.command {
+        Command::Run(a) => run(a),
+        Command::Replay(a) => replay(a),
+    }
+}
+
+/// Reads a scene configuration: a bare config, or a `/config` message's `{"scene", "config"}`.
+fn load_config<T: serde::de::DeserializeOwned>(path: &Path, scene: &str) -> Result<T> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut v: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
+    if let Some(inner) = v.get("config").cloned() {
+        if let Some(s) = v.get("scene").and_then(|s| s.as_str()) {
+            if s != scene {
+                bail!(
+                    "{} configures the scene '{s}', not '{scene}'",
+                    path.display()
+                );
+            }
+        }
+        v = inner;
+    }
+    // an unlimited dt_max (∞) is written as null by serde_json: read it back as the default
+    if let Some(l) = v.get_mut("limits").and_then(|l| l.as_object_mut()) {
+        if l.get("dt_max").is_some_and(|d| d.is_null()) {
+            l.remove("dt_max");
+        }
+    }
+    serde_json::from_value(v)
+        .with_context(|| format!("invalid {scene} configuration in {}", path.display()))
+}
+
+fn progress_bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    if let Ok(style) = ProgressStyle::with_template(template) {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb
+}
+
+fn run(a: RunArgs) -> Result<ExitCode> {
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let path = a.out.join("run.mcap");
+    let options = RecorderOptions {
+        flush_every: a.flush_every,
+        compression: a.compression,
+        ..RecorderOptions::new(a.record, a.record_every)
+    };
+    // Ctrl-C: stop after the current step and finish the file; a second Ctrl-C exits at once
+    // (the file then keeps every flushed step).
+    let stop = Arc::new(AtomicBool::new(false));
+    let presses = Arc::new(AtomicUsize::new(0));
+    {
+        let (stop, presses) = (stop.clone(), presses.clone());
+        ctrlc::set_handler(move || {
+            stop.store(true, Ordering::SeqCst);
+            if presses.fetch_add(1, Ordering::SeqCst) >= 1 {
+                std::process::exit(130);
+            }
+        })
+        .context("installing the Ctrl-C handler")?;
+    }
+    let bar_template = "{spinner} [{elapsed_precise}] [{bar:40}] {percent:>3}% {msg}";
+    let (scene, outcome, rec_result) = match a.scene {
+        SceneName::Cavity => {
+            let mut cfg: cavity::CavityConfig = match &a.config {
+                Some(p) => load_config(p, "cavity")?,
+                None => Default::default(),
+            };
+            override_opt(&mut cfg.re, a.re);
+            override_opt(&mut cfg.n, a.n);
+            override_opt(&mut cfg.t_end, a.t_end);
+            override_opt(&mut cfg.scheme, a.scheme);
+            override_opt(&mut cfg.weight, a.weight);
+            override_opt(&mut cfg.h_over_dx, a.h_ratio);
+            override_opt(&mut cfg.motion, a.motion);
+            let config = serde_json::json!({ "scene": "cavity", "config": &cfg });
+            let mut rec = Recorder::create_with(&path, options, &config)?;
+            let pb = progress_bar(1000, a.quiet, bar_template);
+            let t_end = cfg.t_end;
+            let r = cavity::run(&cfg, |rep, sim| {
+                rec.write_step(rep, sim)?;
+                observe(&pb, rep, t_end, &stop)
+            });
+            pb.finish_and_clear();
+            let r = r.map(|res| serde_json::to_value(res).unwrap_or_default());
+            ("cavity", r, rec.finish())
+        }
+        SceneName::TaylorGreen => {
+            let mut cfg: taylor_green::TaylorGreenConfig = match &a.config {
+                Some(p) => load_config(p, "taylor_green")?,
+                None => Default::default(),
+            };
+            override_opt(&mut cfg.re, a.re);
+            override_opt(&mut cfg.n, a.n);
+            override_opt(&mut cfg.t_end, a.t_end);
+            override_opt(&mut cfg.scheme, a.scheme);
+            override_opt(&mut cfg.weight, a.weight);
+            override_opt(&mut cfg.h_over_dx, a.h_ratio);
+            override_opt(&mut cfg.motion, a.motion);
+            let config = serde_json::json!({ "scene": "taylor_green", "config": &cfg });
+            let mut rec = Recorder::create_with(&path, options, &config)?;
+            let pb = progress_bar(1000, a.quiet, bar_template);
+            let t_end = cfg.t_end;
+            let r = taylor_green::run(&cfg, |rep, sim| {
+                rec.write_step(rep, sim)?;
+                observe(&pb, rep, t_end, &stop)
+            });
+            pb.finish_and_clear();
+            let r = r.map(|res| serde_json::to_value(res).unwrap_or_default());
+            ("taylor_green", r, rec.finish())
+        }
+    };
+    // the file is finished (or its error known) before the run's outcome is reported
+    let record = match rec_result {
+        Ok(s) => {
+            for note in &s.notes {
+                eprintln!("note: {note}");
+            }
+            Some(s)
+        }
+        Err(e) => {
+            eprintln!("error: finishing the recording failed: {e}");
+            None
+        }
+    };
+    match outcome {
+        Ok(result) => {
+            let out = serde_json::json!({ "scene": scene, "result": result, "record": record });
+            println!("{}", serde_json::to_string_pretty(&out)?);
+            Ok(if record.is_some() || a.record == RecordLevel::None {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
+        }
+        Err(gpm::Error::Record(RecordError::Interrupted { step })) => {
+            match &record {
+                Some(r) => eprintln!(
+                    "interrupted after step {step}; {} finished cleanly ({} steps, {} bytes)",
+                    path.display(),
+                    r.steps,
+                    r.bytes
+                ),
+                None => eprintln!("interrupted after step {step}"),
+            }
+            Ok(ExitCode::from(130))
+        }
+        Err(e) => {
+            if let Some(r) = &record {
+                if a.record != RecordLevel::None {
+                    eprintln!(
+                        "the recording of the {} steps before the failure is in {}",
+                        r.steps,
+                        path.display()
+                    );
+                }
+            }
+            Err(anyhow::Error::new(e).context(format!("{scene} run failed")))
+        }
+    }
+}
+
+fn override_opt<T>(slot: &mut T, v: Option<T>) {
+    if let Some(v) = v {
+        *slot = v;
+    }
+}
+
+fn observe(
+    pb: &ProgressBar,
+    rep: &gpm::flow::FlowReport,
+    t_end: f64,
+    stop: &AtomicBool,
+) -> gpm::Result<()> {
+    pb.set_position(((rep.time / t_end).clamp(0.0, 1.0) * 1000.0) as u64);
+    if rep.step % 10 == 1 {
+        pb.set_message(format!(
+            "step {} t={:.4} dt={:.2e} ke={:.4e} ratio={:.3}",
+            rep.step,
+            rep.time,
+            rep.projection.dt,
+            rep.projection.kinetic_energy,
+            rep.projection.stability_ratio
+        ));
+    }
+    if stop.load(Ordering::SeqCst) {
+        return Err(RecordError::Interrupted { step: rep.step }.into());
+    }
+    Ok(())
+}
+
+fn replay(a: ReplayArgs) -> Result<ExitCode> {
+    let bytes_template = "{spinner} {msg} [{bar:40}] {bytes}/{total_bytes}";
+    let len = std::fs::metadata(&a.file)
+        .with_context(|| format!("reading {}", a.file.display()))?
+        .len();
+    let pb = progress_bar(len, a.quiet, bytes_template);
+    pb.set_message("reading");
+    let replay = Replay::open_with_progress(&a.file, |done, _| pb.set_position(done))?;
+    pb.finish_and_clear();
+    let summary = replay.summary();
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        print!("{summary}");
+    }
+    if let Some(d) = replay.damage() {
+        eprintln!("warning: {}: {d}", a.file.display());
+    }
+    if let Some(csv) = &a.csv {
+        replay.write_csv(csv)?;
+        eprintln!("wrote {} ({} rows)", csv.display(), replay.steps.len());
+    }
+    if let Some(png) = &a.plot {
+        replay.plot(png)?;
+        eprintln!("wrote {}", png.display());
+    }
+    if let Some(dir) = &a.vtk {
+        let pb = progress_bar(len, a.quiet, bytes_template);
+        pb.set_message("vtk");
+        let out = export_vtk(&a.file, dir, |done, _| pb.set_position(done))?;
+        pb.finish_and_clear();
+        eprintln!(
+            "wrote {} snapshots and {}",
+            out.files.len(),
+            out.collection.display()
+        );
+    }
+    if a.rerun {
+        let pb = progress_bar(len, a.quiet, bytes_template);
+        pb.set_message("re-running");
+        let r = rerun_file(&a.file, |done, _| pb.set_position(done))?;
+        pb.finish_and_clear();
+        if r.steps.is_empty() {
+            println!(
+                "rerun: the file has no /projection_input messages (record with --record full \
+                 and the projection capture on)"
+            );
+        } else {
+            let (du, dp, dphi) = r.max_differences();
+            let (ru, rp, rphi) = r.max_relative_differences();
+            println!(
+                "rerun: {} projections re-run, {} bit-identical (recorded with {:?} threads, \
+                 re-run with {})",
+                r.steps.len(),
+                r.identical(),
+                r.recorded_threads,
+                r.threads
+            );
+            println!("  max |du|   {du:.3e}  (relative {ru:.3e})");
+            println!("  max |dp|   {dp:.3e}  (relative {rp:.3e})");
+            println!("  max |dphi| {dphi:.3e}  (relative {rphi:.3e})");
+            if r.identical() < r.steps.len() {
+                println!(
+                    "  not identical: with Cholesky the result is reproducible only when the \
+                     neighbour candidates (the matrix pattern) match the run's, which a moving \
+                     (Lagrangian) run does not guarantee; with CG the run started from the \
+                     previous increment and its reductions depend on the threads (see \
+                     gpm::record::rerun)."
+                );
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

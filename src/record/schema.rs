@@ -1,0 +1,1479 @@
+//! The messages of a gpm MCAP log: serde types and, next to each, the JSON Schema stored in the
+//! file for it (MCAP schema encoding `jsonschema`, message encoding `json`).
+//!
+//! | topic | schema name | type | when |
+//! | --- | --- | --- | --- |
+//! | `/config` | `gpm.RunConfig` | [`RunConfig`] | once, first message |
+//! | `/diagnostics` | `gpm.StepDiagnostics` | [`StepDiagnostics`] | every step |
+//! | `/particles` | `foxglove.PointCloud` | [`PointCloud`] | every `k` steps (level `full`) |
+//! | `/projection_input` | `gpm.ProjectionInput` | [`ProjectionInput`] | every `k` steps (level `full`) |
+//!
+//! Floating-point values that are not finite (a diverging run) are written as JSON `null` and
+//! read back as NaN; their schemas say `"type": ["number", "null"]`. Bulk arrays (particle
+//! positions, velocities, …) are [`Array`]s: little-endian bytes in standard base64 with a
+//! numpy-style `dtype` and a `shape`, so they are exact (bit for bit) and cheap to write; in
+//! Python `numpy.frombuffer(base64.b64decode(a["data"]), a["dtype"]).reshape(a["shape"])`.
+//!
+//! Each schema lists every property as required and forbids others, so the schema tests
+//! (`tests/record_schema.rs`) fail as soon as a type and its schema drift apart.
+
+use super::RecordError;
+use crate::boundary::{Boundary, NoBoundary, PeriodicBox, Wall, Walls};
+use crate::flow::{DtLimit, FlowReport};
+use crate::kernel::Weight;
+use crate::neighbors::{NeighborConfig, Periodicity};
+use crate::particles::Role;
+use crate::poisson::{SolveParams, SolverKind};
+use crate::projection::{ProjectionParams, Scheme};
+use base64::Engine as _;
+use serde::{Deserialize, Deserializer, Serialize};
+use serde_json::{json, Value};
+
+/// Version of the message layout below; bumped on any incompatible change.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Topic of [`RunConfig`].
+pub const TOPIC_CONFIG: &str = "/config";
+/// Topic of [`StepDiagnostics`].
+pub const TOPIC_DIAGNOSTICS: &str = "/diagnostics";
+/// Topic of the particle snapshots ([`PointCloud`]).
+pub const TOPIC_PARTICLES: &str = "/particles";
+/// Topic of [`ProjectionInput`].
+pub const TOPIC_PROJECTION: &str = "/projection_input";
+
+/// Schema name of [`RunConfig`].
+pub const SCHEMA_CONFIG: &str = "gpm.RunConfig";
+/// Schema name of [`StepDiagnostics`].
+pub const SCHEMA_DIAGNOSTICS: &str = "gpm.StepDiagnostics";
+/// Schema name of [`PointCloud`] (Foxglove's, so Foxglove Studio's 3D panel shows it).
+pub const SCHEMA_POINT_CLOUD: &str = "foxglove.PointCloud";
+/// Schema name of [`ProjectionInput`].
+pub const SCHEMA_PROJECTION: &str = "gpm.ProjectionInput";
+
+/// Reads a number, or `null` as NaN (serde_json writes every non-finite `f64` as `null`).
+fn nullable<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+// ---------------------------------------------------------------------------------------------
+// JSON Schema building blocks
+
+const DRAFT: &str = "https://json-schema.org/draft/2020-12/schema";
+
+fn number(description: &str) -> Value {
+    json!({"type": "number", "description": description})
+}
+fn number_or_null(description: &str) -> Value {
+    json!({"type": ["number", "null"], "description": description})
+}
+fn count(description: &str) -> Value {
+    json!({"type": "integer", "minimum": 0, "description": description})
+}
+fn boolean(description: &str) -> Value {
+    json!({"type": "boolean", "description": description})
+}
+fn string_enum(description: &str, values: &[&str]) -> Value {
+    json!({"type": "string", "enum": values, "description": description})
+}
+fn numbers(description: &str) -> Value {
+    json!({"type": "array", "items": {"type": "number"}, "description": description})
+}
+
+/// An object schema whose properties are all required and no other is allowed.
+fn object(description: &str, props: &[(&str, Value)]) -> Value {
+    let mut properties = serde_json::Map::new();
+    for (k, v) in props {
+        properties.insert((*k).to_string(), v.clone());
+    }
+    let required: Vec<&str> = props.iter().map(|(k, _)| *k).collect();
+    json!({
+        "type": "object",
+        "description": description,
+        "properties": properties,
+        "required": required,
+        "additionalProperties": false,
+    })
+}
+
+fn root(title: &str, mut schema: Value) -> Value {
+    let m = schema.as_object_mut().expect("object schema");
+    m.insert("$schema".into(), json!(DRAFT));
+    m.insert("title".into(), json!(title));
+    schema
+}
+
+fn weight_schema() -> Value {
+    json!({
+        "description": "Reference weight: cubic_spline, wendland_c2, wendland_c4 or {\"poly\": {\"p\", \"m\"}} for r^p (1 - r)^m",
+        "oneOf": [
+            {"type": "string", "enum": ["cubic_spline", "wendland_c2", "wendland_c4"]},
+            object("polynomial weight r^p (1 - r)^m", &[("poly", object("powers", &[
+                ("p", count("power of r")),
+                ("m", count("power of (1 - r)")),
+            ]))]),
+        ]
+    })
+}
+
+fn scheme_schema() -> Value {
+    string_enum(
+        "pressure-correction scheme",
+        &["non_incremental", "incremental", "rotational"],
+    )
+}
+
+fn solver_kind_schema() -> Value {
+    string_enum("linear solver", &["cholesky", "cg", "auto"])
+}
+
+fn solve_params_schema() -> Value {
+    object(
+        "gpm::poisson::SolveParams",
+        &[
+            ("solver", solver_kind_schema()),
+            ("rel_tol", number("CG relative tolerance")),
+            ("abs_tol", number("CG absolute tolerance")),
+            ("max_iters", count("CG iteration limit")),
+            (
+                "warm_start",
+                boolean("CG starts from the previous increment"),
+            ),
+            (
+                "reuse_symbolic",
+                boolean("Cholesky reuses the symbolic analysis"),
+            ),
+            (
+                "reuse_numeric",
+                boolean("Cholesky reuses the numeric factor"),
+            ),
+            (
+                "direct_limit",
+                count("Auto: largest 2D system solved directly"),
+            ),
+        ],
+    )
+}
+
+// ---------------------------------------------------------------------------------------------
+// /diagnostics
+
+/// Connectivity of the fluid graph at one step (Imoto 2019, Def. 3.1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConnectivityDiagnostics {
+    /// Components of the fluid neighbour graph.
+    pub components: usize,
+    /// Components touching a Dirichlet particle.
+    pub anchored: usize,
+    /// Floating (pure Neumann) components.
+    pub floating: usize,
+    /// Fluid particles without any neighbour.
+    pub isolated: usize,
+    /// Floating components the run allows (`ProjectionParams::allowed_floating`).
+    pub allowed_floating: usize,
+    /// `floating <= allowed_floating && isolated == 0`: the Poisson problem is uniquely solvable
+    /// up to the fixed constants. A failing step stops the run before its solve, so a recorded
+    /// step normally has `ok = true`.
+    pub ok: bool,
+}
+
+/// The Poisson solve of one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolveDiagnostics {
+    /// The solver that ran.
+    pub solver: SolverKind,
+    /// Unknowns.
+    pub unknowns: usize,
+    /// Stored entries of the matrix.
+    pub nnz: usize,
+    /// CG iterations (0 for Cholesky).
+    pub iterations: usize,
+    /// `‖ω∘b − K x‖₂`.
+    #[serde(deserialize_with = "nullable")]
+    pub abs_residual: f64,
+    /// `‖ω∘b − K x‖₂ / ‖ω∘b‖₂`.
+    #[serde(deserialize_with = "nullable")]
+    pub rel_residual: f64,
+    /// Largest relative compatibility defect of a floating component (discrete Gauss theorem).
+    #[serde(deserialize_with = "nullable")]
+    pub compatibility_defect: f64,
+    /// The matrix pattern was rebuilt.
+    pub pattern_rebuilt: bool,
+    /// Cholesky reused its symbolic analysis.
+    pub reused_symbolic: bool,
+    /// Cholesky reused its numeric factor.
+    pub reused_numeric: bool,
+    /// Seconds: assembly.
+    #[serde(deserialize_with = "nullable")]
+    pub assemble_seconds: f64,
+    /// Seconds: symbolic analysis.
+    #[serde(deserialize_with = "nullable")]
+    pub symbolic_seconds: f64,
+    /// Seconds: numeric factorisation.
+    #[serde(deserialize_with = "nullable")]
+    pub numeric_seconds: f64,
+    /// Seconds: triangular solves or CG iterations.
+    #[serde(deserialize_with = "nullable")]
+    pub iterate_seconds: f64,
+}
+
+/// Wall-clock seconds per stage of one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimingDiagnostics {
+    /// Ghosts, neighbour list, volumes.
+    #[serde(deserialize_with = "nullable")]
+    pub neighbors: f64,
+    /// Predictor.
+    #[serde(deserialize_with = "nullable")]
+    pub predictor: f64,
+    /// Connectivity, `c0`, norms.
+    #[serde(deserialize_with = "nullable")]
+    pub diagnostics: f64,
+    /// Source `∇̂h·f`.
+    #[serde(deserialize_with = "nullable")]
+    pub source: f64,
+    /// Poisson solve (assembly, factorisation, iterations).
+    #[serde(deserialize_with = "nullable")]
+    pub solve: f64,
+    /// Correction and pressure update.
+    #[serde(deserialize_with = "nullable")]
+    pub correction: f64,
+    /// Advection, shifting, confinement.
+    #[serde(deserialize_with = "nullable")]
+    pub advect: f64,
+    /// Sum of the stages above.
+    #[serde(deserialize_with = "nullable")]
+    pub total: f64,
+    /// Seconds the recorder spent on the *previous* step (serialising, compressing, flushing):
+    /// the recording overhead, comparable with `total`.
+    #[serde(deserialize_with = "nullable")]
+    pub record: f64,
+}
+
+/// One `/diagnostics` message: what one flow step did and measured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StepDiagnostics {
+    /// Step number (1 for the first step); also the MCAP sequence number.
+    pub step: u64,
+    /// Simulation time after the step; the MCAP log time is this in nanoseconds.
+    #[serde(deserialize_with = "nullable")]
+    pub time: f64,
+    /// Time step.
+    #[serde(deserialize_with = "nullable")]
+    pub dt: f64,
+    /// Which limit set `Δt`.
+    pub dt_limit: DtLimit,
+    /// h-connectivity.
+    pub connectivity: ConnectivityDiagnostics,
+    /// Semi-regularity constant `c0` (Def. 3.2).
+    #[serde(deserialize_with = "nullable")]
+    pub c0: f64,
+    /// Theorem 4.5 ratio `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)` (at most 1 by the theorem).
+    #[serde(deserialize_with = "nullable")]
+    pub stability_ratio: f64,
+    /// The Poisson solve.
+    pub solve: SolveDiagnostics,
+    /// `‖∇̂h·u*‖_ℓ2(Ω)`.
+    #[serde(deserialize_with = "nullable")]
+    pub div_before: f64,
+    /// `‖∇̂h·uⁿ⁺¹‖_ℓ2(Ω)`.
+    #[serde(deserialize_with = "nullable")]
+    pub div_after: f64,
+    /// Kinetic energy after the step.
+    #[serde(deserialize_with = "nullable")]
+    pub kinetic_energy: f64,
+    /// Largest fluid speed after the step.
+    #[serde(deserialize_with = "nullable")]
+    pub max_speed: f64,
+    /// The neighbour candidates were rebuilt this step.
+    pub neighbors_rebuilt: bool,
+    /// Largest particle shift this step.
+    #[serde(deserialize_with = "nullable")]
+    pub max_shift: f64,
+    /// Seconds per stage.
+    pub timings: TimingDiagnostics,
+}
+
+impl StepDiagnostics {
+    /// The diagnostics of a flow step. `allowed_floating` comes from the projection parameters;
+    /// `record_seconds` is the recorder's time on the previous step.
+    pub fn from_report(report: &FlowReport, allowed_floating: usize, record_seconds: f64) -> Self {
+        let p = &report.projection;
+        let c = &p.connectivity;
+        let t = &p.timings;
+        let total = report.neighbors_seconds
+            + t.predictor
+            + t.diagnostics
+            + t.source
+            + t.solve
+            + t.correction
+            + report.advect_seconds;
+        StepDiagnostics {
+            step: report.step,
+            time: report.time,
+            dt: p.dt,
+            dt_limit: report.dt_limit,
+            connectivity: ConnectivityDiagnostics {
+                components: c.components,
+                anchored: c.anchored,
+                floating: c.floating,
+                isolated: c.isolated,
+                allowed_floating,
+                ok: c.floating <= allowed_floating && c.isolated == 0,
+            },
+            c0: p.c0,
+            stability_ratio: p.stability_ratio,
+            solve: SolveDiagnostics {
+                solver: p.solve.solver,
+                unknowns: p.solve.unknowns,
+                nnz: p.solve.nnz,
+                iterations: p.solve.iters,
+                abs_residual: p.solve.abs_residual,
+                rel_residual: p.solve.rel_residual,
+                compatibility_defect: p.solve.compatibility_defect,
+                pattern_rebuilt: p.solve.pattern_rebuilt,
+                reused_symbolic: p.solve.reused_symbolic,
+                reused_numeric: p.solve.reused_numeric,
+                assemble_seconds: p.solve.assemble_seconds,
+                symbolic_seconds: p.solve.symbolic_seconds,
+                numeric_seconds: p.solve.numeric_seconds,
+                iterate_seconds: p.solve.solve_seconds,
+            },
+            div_before: p.div_before,
+            div_after: p.div_after,
+            kinetic_energy: p.kinetic_energy,
+            max_speed: p.max_speed,
+            neighbors_rebuilt: report.neighbors_rebuilt,
+            max_shift: report.max_shift,
+            timings: TimingDiagnostics {
+                neighbors: report.neighbors_seconds,
+                predictor: t.predictor,
+                diagnostics: t.diagnostics,
+                source: t.source,
+                solve: t.solve,
+                correction: t.correction,
+                advect: report.advect_seconds,
+                total,
+                record: record_seconds,
+            },
+        }
+    }
+
+    /// JSON Schema of the message (schema name [`SCHEMA_DIAGNOSTICS`]).
+    pub fn schema() -> Value {
+        let secs = |d: &str| number_or_null(&format!("seconds: {d}"));
+        root(
+            SCHEMA_DIAGNOSTICS,
+            object(
+                "One flow step of a gpm run: connectivity, c0, Theorem 4.5 ratio, Poisson solve, divergence, energy, timings",
+                &[
+                    ("step", count("step number, 1 for the first step (= MCAP sequence)")),
+                    ("time", number_or_null("simulation time after the step (MCAP log time = time in ns)")),
+                    ("dt", number_or_null("time step")),
+                    ("dt_limit", string_enum("limit that set the time step", &["cfl", "viscous", "force", "max", "fixed"])),
+                    (
+                        "connectivity",
+                        object(
+                            "h-connectivity of the fluid graph (Imoto 2019, Def. 3.1)",
+                            &[
+                                ("components", count("components of the fluid neighbour graph")),
+                                ("anchored", count("components touching a Dirichlet particle")),
+                                ("floating", count("floating (pure Neumann) components")),
+                                ("isolated", count("fluid particles without neighbours")),
+                                ("allowed_floating", count("floating components the run allows")),
+                                ("ok", boolean("floating <= allowed_floating and no isolated particle")),
+                            ],
+                        ),
+                    ),
+                    ("c0", number_or_null("semi-regularity constant c0 = max_i sum_j w_j w_h(r_ij)")),
+                    ("stability_ratio", number_or_null("Theorem 4.5 ratio |phi|_h01 / (sqrt(d c0) |f|_l2), at most 1")),
+                    (
+                        "solve",
+                        object(
+                            "the pressure Poisson solve",
+                            &[
+                                ("solver", solver_kind_schema()),
+                                ("unknowns", count("unknowns")),
+                                ("nnz", count("stored matrix entries")),
+                                ("iterations", count("CG iterations (0 for Cholesky)")),
+                                ("abs_residual", number_or_null("|w b - K x|_2")),
+                                ("rel_residual", number_or_null("|w b - K x|_2 / |w b|_2")),
+                                ("compatibility_defect", number_or_null("largest relative compatibility defect of a floating component")),
+                                ("pattern_rebuilt", boolean("the matrix pattern was rebuilt")),
+                                ("reused_symbolic", boolean("Cholesky reused its symbolic analysis")),
+                                ("reused_numeric", boolean("Cholesky reused its numeric factor")),
+                                ("assemble_seconds", secs("assembly")),
+                                ("symbolic_seconds", secs("symbolic analysis")),
+                                ("numeric_seconds", secs("numeric factorisation")),
+                                ("iterate_seconds", secs("triangular solves or CG iterations")),
+                            ],
+                        ),
+                    ),
+                    ("div_before", number_or_null("|div u*|_l2 over the fluid")),
+                    ("div_after", number_or_null("|div u^{n+1}|_l2 over the fluid")),
+                    ("kinetic_energy", number_or_null("kinetic energy after the step")),
+                    ("max_speed", number_or_null("largest fluid speed after the step")),
+                    ("neighbors_rebuilt", boolean("the neighbour candidates were rebuilt")),
+                    ("max_shift", number_or_null("largest particle shift")),
+                    (
+                        "timings",
+                        object(
+                            "wall-clock seconds per stage",
+                            &[
+                                ("neighbors", secs("ghosts, neighbour list, volumes")),
+                                ("predictor", secs("predictor")),
+                                ("diagnostics", secs("connectivity, c0, norms")),
+                                ("source", secs("divergence source")),
+                                ("solve", secs("Poisson solve")),
+                                ("correction", secs("correction and pressure update")),
+                                ("advect", secs("advection, shifting")),
+                                ("total", secs("sum of the stages")),
+                                ("record", secs("recorder time on the previous step")),
+                            ],
+                        ),
+                    ),
+                ],
+            ),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// /config
+
+/// The `/config` message: the run's complete configuration, written once before the first step.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Always `"gpm-mcap"`.
+    pub format: String,
+    /// [`FORMAT_VERSION`] of the writer.
+    pub format_version: u32,
+    /// Version of the gpm crate that wrote the file.
+    pub gpm_version: String,
+    /// Recording level.
+    pub level: super::RecordLevel,
+    /// `k`: snapshots and projection inputs every `k` steps (level `full`).
+    pub particles_every: u64,
+    /// The file is flushed (a chunk closed) every this many steps.
+    pub flush_every: u64,
+    /// Chunk compression (`zstd` or `none`).
+    pub compression: String,
+    /// Rayon worker threads of the run (results of parallel reductions may depend on it).
+    pub threads: usize,
+    /// The caller's configuration, verbatim (for `gpm run`: `{"scene": ..., "config": {...}}`
+    /// with the scene's serde configuration, enough to reproduce the run).
+    pub config: Value,
+}
+
+impl RunConfig {
+    /// JSON Schema of the message (schema name [`SCHEMA_CONFIG`]).
+    pub fn schema() -> Value {
+        root(
+            SCHEMA_CONFIG,
+            object(
+                "Configuration of a gpm run, written once before the first step",
+                &[
+                    (
+                        "format",
+                        json!({"const": "gpm-mcap", "description": "file format tag"}),
+                    ),
+                    ("format_version", count("version of the message layout")),
+                    (
+                        "gpm_version",
+                        json!({"type": "string", "description": "version of the gpm crate that wrote the file"}),
+                    ),
+                    (
+                        "level",
+                        string_enum("recording level", &["none", "diagnostics", "full"]),
+                    ),
+                    (
+                        "particles_every",
+                        count("snapshots and projection inputs every k steps"),
+                    ),
+                    (
+                        "flush_every",
+                        count("a chunk is closed every this many steps"),
+                    ),
+                    (
+                        "compression",
+                        string_enum("chunk compression", &["zstd", "none"]),
+                    ),
+                    ("threads", count("rayon worker threads of the run")),
+                    (
+                        "config",
+                        json!({"description": "the caller's configuration, verbatim (gpm run: {\"scene\", \"config\"})"}),
+                    ),
+                ],
+            ),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// /particles: foxglove.PointCloud
+
+/// `foxglove.Time`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Time {
+    /// Seconds.
+    pub sec: u32,
+    /// Nanoseconds, `0..1e9`.
+    pub nsec: u32,
+}
+
+impl Time {
+    /// From nanoseconds.
+    pub fn from_nanos(ns: u64) -> Self {
+        Time {
+            sec: (ns / 1_000_000_000).min(u32::MAX as u64) as u32,
+            nsec: (ns % 1_000_000_000) as u32,
+        }
+    }
+}
+
+/// `foxglove.Vector3`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `foxglove.Quaternion`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+/// `foxglove.Pose`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Origin.
+    pub position: Vector3,
+    /// Orientation.
+    pub orientation: Quaternion,
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose {
+            position: Vector3::default(),
+            orientation: Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 1.0,
+            },
+        }
+    }
+}
+
+/// `foxglove.NumericType` code of 32-bit floats.
+pub const FLOAT32: u8 = 7;
+/// `foxglove.NumericType` code of 64-bit floats.
+pub const FLOAT64: u8 = 8;
+
+/// `foxglove.PackedElementField`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PackedElementField {
+    /// Field name (`x`, `y`, `z` are the position).
+    pub name: String,
+    /// Byte offset within a point.
+    pub offset: u32,
+    /// `foxglove.NumericType` (1 UINT8 … 7 FLOAT32, 8 FLOAT64).
+    #[serde(rename = "type")]
+    pub numeric_type: u8,
+}
+
+/// `foxglove.PointCloud`: the `/particles` snapshot. gpm writes, per particle (ghosts
+/// included), little-endian FLOAT32 fields `x y z vx vy vz speed p role` (`z = vz = 0` in 2D;
+/// `role`: 0 fluid, 1 Dirichlet, 2 ghost), `frame_id = "world"`, identity pose.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PointCloud {
+    /// Simulation time.
+    pub timestamp: Time,
+    /// Frame of reference.
+    pub frame_id: String,
+    /// Origin of the cloud in the frame.
+    pub pose: Pose,
+    /// Bytes per point.
+    pub point_stride: u32,
+    /// Fields of a point.
+    pub fields: Vec<PackedElementField>,
+    /// Points, standard base64.
+    pub data: String,
+}
+
+/// Field names of gpm's point clouds, in order.
+pub const POINT_FIELDS: [&str; 9] = ["x", "y", "z", "vx", "vy", "vz", "speed", "p", "role"];
+
+/// Role code of the point cloud and of [`ProjectionInput::role_kind`].
+pub fn role_code(r: &Role) -> u8 {
+    match r {
+        Role::Fluid => 0,
+        Role::Dirichlet => 1,
+        Role::Ghost { .. } => 2,
+    }
+}
+
+impl PointCloud {
+    /// A snapshot of particles at `time` (seconds).
+    pub fn from_particles<const D: usize>(
+        time: f64,
+        x: &[[f64; D]],
+        u: &[[f64; D]],
+        p: &[f64],
+        role: &[Role],
+    ) -> Self {
+        let stride = 4 * POINT_FIELDS.len();
+        let mut bytes = Vec::with_capacity(stride * x.len());
+        for i in 0..x.len() {
+            let mut put = |v: f64| bytes.extend_from_slice(&(v as f32).to_le_bytes());
+            let c = |a: &[f64; D], k: usize| if k < D { a[k] } else { 0.0 };
+            for k in 0..3 {
+                put(c(&x[i], k));
+            }
+            for k in 0..3 {
+                put(c(&u[i], k));
+            }
+            put(u[i].iter().map(|v| v * v).sum::<f64>().sqrt());
+            put(p[i]);
+            put(role_code(&role[i]) as f64);
+        }
+        PointCloud {
+            timestamp: Time::from_nanos(super::time_to_nanos(time)),
+            frame_id: "world".into(),
+            pose: Pose::default(),
+            point_stride: stride as u32,
+            fields: POINT_FIELDS
+                .iter()
+                .enumerate()
+                .map(|(k, n)| PackedElementField {
+                    name: (*n).into(),
+                    offset: 4 * k as u32,
+                    numeric_type: FLOAT32,
+                })
+                .collect(),
+            data: base64::engine::general_purpose::STANDARD.encode(&bytes),
+        }
+    }
+
+    /// Number of points (decodes nothing).
+    pub fn len(&self) -> usize {
+        let bytes = self.data.len() / 4 * 3;
+        let pad = self.data.bytes().rev().take_while(|&b| b == b'=').count();
+        (bytes - pad.min(bytes)) / (self.point_stride.max(1) as usize)
+    }
+
+    /// True when the cloud has no point.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Decodes the named fields (any FLOAT32/FLOAT64/integer field) into one `Vec<f64>` each;
+    /// `None` for a field the cloud does not have.
+    pub fn decode(&self, names: &[&str]) -> Result<Vec<Option<Vec<f64>>>, String> {
+        let bytes = base64::engine::general_purpose::STANDARD
+            .decode(self.data.as_bytes())
+            .map_err(|e| format!("point cloud data is not base64: {e}"))?;
+        let stride = self.point_stride as usize;
+        if stride == 0 || bytes.len() % stride != 0 {
+            return Err(format!(
+                "point cloud data has {} bytes, not a multiple of the stride {stride}",
+                bytes.len()
+            ));
+        }
+        let n = bytes.len() / stride;
+        let mut out = Vec::new();
+        for name in names {
+            let Some(f) = self.fields.iter().find(|f| f.name == *name) else {
+                out.push(None);
+                continue;
+            };
+            let size = match f.numeric_type {
+                1 | 2 => 1,
+                3 | 4 => 2,
+                5..=7 => 4,
+                8 => 8,
+                t => return Err(format!("field '{name}' has unknown numeric type {t}")),
+            };
+            let off = f.offset as usize;
+            if off + size > stride {
+                return Err(format!("field '{name}' lies outside the point stride"));
+            }
+            let mut v = Vec::with_capacity(n);
+            for i in 0..n {
+                let b = &bytes[i * stride + off..i * stride + off + size];
+                v.push(match f.numeric_type {
+                    1 => b[0] as f64,
+                    2 => b[0] as i8 as f64,
+                    3 => u16::from_le_bytes([b[0], b[1]]) as f64,
+                    4 => i16::from_le_bytes([b[0], b[1]]) as f64,
+                    5 => u32::from_le_bytes(b.try_into().unwrap()) as f64,
+                    6 => i32::from_le_bytes(b.try_into().unwrap()) as f64,
+                    7 => f32::from_le_bytes(b.try_into().unwrap()) as f64,
+                    _ => f64::from_le_bytes(b.try_into().unwrap()),
+                });
+            }
+            out.push(Some(v));
+        }
+        Ok(out)
+    }
+
+    /// JSON Schema of `foxglove.PointCloud` (the structure Foxglove publishes for this schema
+    /// name; written here with every property required).
+    pub fn schema() -> Value {
+        let vec3 = object(
+            "foxglove.Vector3",
+            &[("x", number("x")), ("y", number("y")), ("z", number("z"))],
+        );
+        let quat = object(
+            "foxglove.Quaternion",
+            &[
+                ("x", number("x")),
+                ("y", number("y")),
+                ("z", number("z")),
+                ("w", number("w")),
+            ],
+        );
+        let numeric_type = json!({
+            "description": "foxglove.NumericType: 0 UNKNOWN, 1 UINT8, 2 INT8, 3 UINT16, 4 INT16, 5 UINT32, 6 INT32, 7 FLOAT32, 8 FLOAT64 (little-endian)",
+            "type": "integer",
+            "enum": [0, 1, 2, 3, 4, 5, 6, 7, 8],
+        });
+        root(
+            SCHEMA_POINT_CLOUD,
+            object(
+                "A collection of N-dimensional points with extra fields per point (gpm: x y z vx vy vz speed p role)",
+                &[
+                    (
+                        "timestamp",
+                        object(
+                            "time of the cloud",
+                            &[
+                                ("sec", count("seconds")),
+                                (
+                                    "nsec",
+                                    json!({"type": "integer", "minimum": 0, "maximum": 999_999_999, "description": "nanoseconds"}),
+                                ),
+                            ],
+                        ),
+                    ),
+                    ("frame_id", json!({"type": "string", "description": "frame of reference"})),
+                    (
+                        "pose",
+                        object(
+                            "foxglove.Pose: origin of the cloud in the frame",
+                            &[("position", vec3), ("orientation", quat)],
+                        ),
+                    ),
+                    ("point_stride", count("bytes between points in data")),
+                    (
+                        "fields",
+                        json!({
+                            "type": "array",
+                            "description": "fields of each point in data",
+                            "items": object("foxglove.PackedElementField", &[
+                                ("name", json!({"type": "string", "description": "field name"})),
+                                ("offset", count("byte offset within a point")),
+                                ("type", numeric_type),
+                            ]),
+                        }),
+                    ),
+                    (
+                        "data",
+                        json!({"type": "string", "contentEncoding": "base64", "description": "points, interpreted with fields"}),
+                    ),
+                ],
+            ),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bulk arrays
+
+/// Element type of an [`Array`] (numpy spelling).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Dtype {
+    /// Little-endian `f64`.
+    #[serde(rename = "<f8")]
+    F64,
+    /// Little-endian `u32`.
+    #[serde(rename = "<u4")]
+    U32,
+    /// `u8`.
+    #[serde(rename = "|u1")]
+    U8,
+}
+
+impl Dtype {
+    fn size(self) -> usize {
+        match self {
+            Dtype::F64 => 8,
+            Dtype::U32 => 4,
+            Dtype::U8 => 1,
+        }
+    }
+}
+
+/// A typed array, exact: little-endian bytes in standard base64, numpy `dtype` and `shape`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Array {
+    /// Element type.
+    pub dtype: Dtype,
+    /// Shape (row-major): `[n]` or `[n, D]`.
+    pub shape: Vec<usize>,
+    /// The bytes, standard base64.
+    pub data: String,
+}
+
+fn b64(bytes: &[u8]) -> String {
+    base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+impl Array {
+    /// `[n]` f64.
+    pub fn from_f64(v: &[f64]) -> Self {
+        let mut b = Vec::with_capacity(8 * v.len());
+        for x in v {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        Array {
+            dtype: Dtype::F64,
+            shape: vec![v.len()],
+            data: b64(&b),
+        }
+    }
+    /// `[n, D]` f64.
+    pub fn from_vectors<const D: usize>(v: &[[f64; D]]) -> Self {
+        let mut b = Vec::with_capacity(8 * D * v.len());
+        for x in v {
+            for c in x {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        Array {
+            dtype: Dtype::F64,
+            shape: vec![v.len(), D],
+            data: b64(&b),
+        }
+    }
+    /// `[n]` u32.
+    pub fn from_u32(v: &[u32]) -> Self {
+        let mut b = Vec::with_capacity(4 * v.len());
+        for x in v {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        Array {
+            dtype: Dtype::U32,
+            shape: vec![v.len()],
+            data: b64(&b),
+        }
+    }
+    /// `[n]` u8.
+    pub fn from_u8(v: &[u8]) -> Self {
+        Array {
+            dtype: Dtype::U8,
+            shape: vec![v.len()],
+            data: b64(v),
+        }
+    }
+
+    fn bytes(&self, what: &'static str, dtype: Dtype) -> Result<Vec<u8>, RecordError> {
+        let spec = |reason: String| RecordError::Spec { what, reason };
+        if self.dtype != dtype {
+            return Err(spec(format!(
+                "dtype {:?}, expected {:?}",
+                self.dtype, dtype
+            )));
+        }
+        let b = base64::engine::general_purpose::STANDARD
+            .decode(self.data.as_bytes())
+            .map_err(|e| spec(format!("data is not base64: {e}")))?;
+        let n: usize = self.shape.iter().product();
+        if b.len() != n * dtype.size() {
+            return Err(spec(format!(
+                "shape {:?} needs {} bytes, data has {}",
+                self.shape,
+                n * dtype.size(),
+                b.len()
+            )));
+        }
+        Ok(b)
+    }
+
+    /// Decodes a `[n]` f64 array.
+    pub fn to_f64(&self, what: &'static str) -> Result<Vec<f64>, RecordError> {
+        let b = self.bytes(what, Dtype::F64)?;
+        Ok(b.chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect())
+    }
+    /// Decodes a `[n, D]` f64 array.
+    pub fn to_vectors<const D: usize>(
+        &self,
+        what: &'static str,
+    ) -> Result<Vec<[f64; D]>, RecordError> {
+        if self.shape.len() != 2 || self.shape[1] != D {
+            return Err(RecordError::Spec {
+                what,
+                reason: format!("shape {:?}, expected [n, {D}]", self.shape),
+            });
+        }
+        let v = self.to_f64(what)?;
+        Ok(v.chunks_exact(D)
+            .map(|c| std::array::from_fn(|k| c[k]))
+            .collect())
+    }
+    /// Decodes a `[n]` u32 array.
+    pub fn to_u32(&self, what: &'static str) -> Result<Vec<u32>, RecordError> {
+        let b = self.bytes(what, Dtype::U32)?;
+        Ok(b.chunks_exact(4)
+            .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+            .collect())
+    }
+    /// Decodes a `[n]` u8 array.
+    pub fn to_u8(&self, what: &'static str) -> Result<Vec<u8>, RecordError> {
+        self.bytes(what, Dtype::U8)
+    }
+
+    /// Number of elements the shape declares.
+    pub fn len(&self) -> usize {
+        self.shape.iter().product()
+    }
+
+    /// True when the array has no element.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// JSON Schema of an array.
+    pub fn schema(description: &str) -> Value {
+        object(
+            description,
+            &[
+                (
+                    "dtype",
+                    string_enum(
+                        "numpy dtype: <f8 little-endian f64, <u4 little-endian u32, |u1 u8",
+                        &["<f8", "<u4", "|u1"],
+                    ),
+                ),
+                (
+                    "shape",
+                    json!({"type": "array", "items": {"type": "integer", "minimum": 0}, "description": "row-major shape"}),
+                ),
+                (
+                    "data",
+                    json!({"type": "string", "contentEncoding": "base64", "description": "the bytes, standard base64"}),
+                ),
+            ],
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// What a projection needs besides the particles
+
+fn dim_check(what: &'static str, len: usize, d: usize) -> Result<(), RecordError> {
+    if len != d {
+        return Err(RecordError::Spec {
+            what,
+            reason: format!("has {len} components, the run is {d}-dimensional"),
+        });
+    }
+    Ok(())
+}
+
+fn to_array<const D: usize>(what: &'static str, v: &[f64]) -> Result<[f64; D], RecordError> {
+    dim_check(what, v.len(), D)?;
+    Ok(std::array::from_fn(|k| v[k]))
+}
+
+/// Periodic axes ([`Periodicity`]): axis `k` has period `len[k]` when it is positive.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PeriodicSpec {
+    /// Lower corner of the periodic box.
+    pub lo: Vec<f64>,
+    /// Period per axis; 0 = not periodic.
+    pub len: Vec<f64>,
+}
+
+impl<const D: usize> From<&Periodicity<D>> for PeriodicSpec {
+    fn from(p: &Periodicity<D>) -> Self {
+        PeriodicSpec {
+            lo: p.lo.to_vec(),
+            len: p.len.to_vec(),
+        }
+    }
+}
+
+impl PeriodicSpec {
+    /// Back to a [`Periodicity`] (checks the dimension).
+    pub fn to_periodicity<const D: usize>(&self) -> Result<Periodicity<D>, RecordError> {
+        Ok(Periodicity {
+            lo: to_array("periodic.lo", &self.lo)?,
+            len: to_array("periodic.len", &self.len)?,
+        })
+    }
+
+    fn schema() -> Value {
+        object(
+            "periodic axes: axis k has period len[k] when positive",
+            &[
+                ("lo", numbers("lower corner of the periodic box")),
+                ("len", numbers("period per axis (0 = not periodic)")),
+            ],
+        )
+    }
+}
+
+/// Everything [`crate::neighbors::NeighborList::build`] needs besides the positions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NeighborSpec {
+    /// Influence radius `h`.
+    pub h: f64,
+    /// Skin.
+    pub skin: f64,
+    /// Reference weight.
+    pub weight: Weight,
+    /// Periodic axes.
+    pub periodic: PeriodicSpec,
+}
+
+impl<const D: usize> From<&NeighborConfig<D>> for NeighborSpec {
+    fn from(c: &NeighborConfig<D>) -> Self {
+        NeighborSpec {
+            h: c.h,
+            skin: c.skin,
+            weight: c.weight,
+            periodic: (&c.periodic).into(),
+        }
+    }
+}
+
+impl NeighborSpec {
+    /// Back to a [`NeighborConfig`] (checks the dimension).
+    pub fn to_config<const D: usize>(&self) -> Result<NeighborConfig<D>, RecordError> {
+        Ok(NeighborConfig::new(self.weight, self.h, self.skin)
+            .with_periodicity(self.periodic.to_periodicity()?))
+    }
+
+    fn schema() -> Value {
+        object(
+            "gpm::neighbors::NeighborConfig",
+            &[
+                ("h", number("influence radius")),
+                ("skin", number("neighbour skin")),
+                ("weight", weight_schema()),
+                ("periodic", PeriodicSpec::schema()),
+            ],
+        )
+    }
+}
+
+/// One planar wall ([`Wall`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallSpec {
+    /// Normal axis.
+    pub axis: usize,
+    /// Coordinate of the plane.
+    pub position: f64,
+    /// +1 when the fluid is at larger coordinates, −1 otherwise.
+    pub inward: f64,
+    /// Wall velocity.
+    pub velocity: Vec<f64>,
+}
+
+/// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum BoundarySpec {
+    /// [`NoBoundary`].
+    None,
+    /// [`PeriodicBox`].
+    Periodic {
+        /// The periodic axes.
+        periodic: PeriodicSpec,
+    },
+    /// [`Walls`] with mirror ghosts (bit `k` of a ghost's `walls` is `walls[k]`).
+    Walls {
+        /// The walls, in order.
+        walls: Vec<WallSpec>,
+        /// Periodic axes.
+        periodic: PeriodicSpec,
+    },
+}
+
+/// Boundaries that can describe themselves as a [`BoundarySpec`] (needed to record projection
+/// inputs). Implemented for the crate's boundaries; implement it for your own to record them
+/// (returning a spec that [`BoundarySpec::build`] turns into an equivalent boundary).
+pub trait ToBoundarySpec<const D: usize> {
+    /// The spec of this boundary.
+    fn to_spec(&self) -> BoundarySpec;
+}
+
+impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
+    fn to_spec(&self) -> BoundarySpec {
+        BoundarySpec::Walls {
+            walls: self
+                .walls
+                .iter()
+                .map(|w| WallSpec {
+                    axis: w.axis,
+                    position: w.position,
+                    inward: w.inward,
+                    velocity: w.velocity.to_vec(),
+                })
+                .collect(),
+            periodic: (&self.periodic).into(),
+        }
+    }
+}
+
+impl<const D: usize> ToBoundarySpec<D> for PeriodicBox<D> {
+    fn to_spec(&self) -> BoundarySpec {
+        BoundarySpec::Periodic {
+            periodic: (&self.periodic).into(),
+        }
+    }
+}
+
+impl<const D: usize> ToBoundarySpec<D> for NoBoundary {
+    fn to_spec(&self) -> BoundarySpec {
+        BoundarySpec::None
+    }
+}
+
+impl<const D: usize> From<&Walls<D>> for BoundarySpec {
+    fn from(w: &Walls<D>) -> Self {
+        w.to_spec()
+    }
+}
+
+impl<const D: usize> From<&PeriodicBox<D>> for BoundarySpec {
+    fn from(b: &PeriodicBox<D>) -> Self {
+        b.to_spec()
+    }
+}
+
+impl BoundarySpec {
+    /// [`Walls`] from a `walls` spec.
+    pub fn to_walls<const D: usize>(&self) -> Result<Walls<D>, RecordError> {
+        match self {
+            BoundarySpec::Walls { walls, periodic } => {
+                let mut out = Vec::with_capacity(walls.len());
+                for w in walls {
+                    if w.axis >= D {
+                        return Err(RecordError::Spec {
+                            what: "wall",
+                            reason: format!("axis {} in a {D}-dimensional run", w.axis),
+                        });
+                    }
+                    out.push(Wall {
+                        axis: w.axis,
+                        position: w.position,
+                        inward: w.inward,
+                        velocity: to_array("wall velocity", &w.velocity)?,
+                    });
+                }
+                if out.len() > 8 {
+                    return Err(RecordError::Spec {
+                        what: "walls",
+                        reason: format!("{} walls; at most 8 are supported", out.len()),
+                    });
+                }
+                Ok(Walls {
+                    walls: out,
+                    periodic: periodic.to_periodicity()?,
+                })
+            }
+            _ => Err(RecordError::Spec {
+                what: "boundary",
+                reason: "not a walls boundary".into(),
+            }),
+        }
+    }
+
+    /// The boundary this spec describes.
+    pub fn build<const D: usize>(&self) -> Result<Box<dyn Boundary<D>>, RecordError> {
+        Ok(match self {
+            BoundarySpec::None => Box::new(NoBoundary),
+            BoundarySpec::Periodic { periodic } => Box::new(PeriodicBox {
+                periodic: periodic.to_periodicity()?,
+            }),
+            BoundarySpec::Walls { .. } => Box::new(self.to_walls::<D>()?),
+        })
+    }
+
+    fn schema() -> Value {
+        let wall = object(
+            "one planar wall x[axis] = position",
+            &[
+                ("axis", count("normal axis")),
+                ("position", number("coordinate of the plane")),
+                (
+                    "inward",
+                    number("+1 when the fluid is at larger coordinates, -1 otherwise"),
+                ),
+                ("velocity", numbers("wall velocity")),
+            ],
+        );
+        json!({
+            "description": "boundary: none, periodic box, or planar walls with mirror ghosts",
+            "oneOf": [
+                object("no boundary", &[("kind", json!({"const": "none"}))]),
+                object("periodic box", &[
+                    ("kind", json!({"const": "periodic"})),
+                    ("periodic", PeriodicSpec::schema()),
+                ]),
+                object("planar walls with mirror ghosts; bit k of a ghost's walls is walls[k]", &[
+                    ("kind", json!({"const": "walls"})),
+                    ("walls", json!({"type": "array", "items": wall, "maxItems": 8})),
+                    ("periodic", PeriodicSpec::schema()),
+                ]),
+            ]
+        })
+    }
+}
+
+/// [`ProjectionParams`] in serialisable form.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectionSpec {
+    /// Density.
+    pub rho: f64,
+    /// Kinematic viscosity.
+    pub nu: f64,
+    /// Body force.
+    pub gravity: Vec<f64>,
+    /// Pressure scheme.
+    pub scheme: Scheme,
+    /// Implicit weight of the viscous term.
+    pub viscous_theta: f64,
+    /// Linear solve.
+    pub solve: SolveParams,
+    /// Floating components allowed.
+    pub allowed_floating: usize,
+}
+
+impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
+    fn from(p: &ProjectionParams<D>) -> Self {
+        ProjectionSpec {
+            rho: p.rho,
+            nu: p.nu,
+            gravity: p.gravity.to_vec(),
+            scheme: p.scheme,
+            viscous_theta: p.viscous_theta,
+            solve: p.solve,
+            allowed_floating: p.allowed_floating,
+        }
+    }
+}
+
+impl ProjectionSpec {
+    /// Back to [`ProjectionParams`] (checks the dimension).
+    pub fn to_params<const D: usize>(&self) -> Result<ProjectionParams<D>, RecordError> {
+        let mut p = ProjectionParams::new(self.nu);
+        p.rho = self.rho;
+        p.gravity = to_array("gravity", &self.gravity)?;
+        p.scheme = self.scheme;
+        p.viscous_theta = self.viscous_theta;
+        p.solve = self.solve;
+        p.allowed_floating = self.allowed_floating;
+        Ok(p)
+    }
+
+    fn schema() -> Value {
+        object(
+            "gpm::projection::ProjectionParams",
+            &[
+                ("rho", number("density")),
+                ("nu", number("kinematic viscosity")),
+                ("gravity", numbers("body force")),
+                ("scheme", scheme_schema()),
+                (
+                    "viscous_theta",
+                    number("implicit weight of the viscous term"),
+                ),
+                ("solve", solve_params_schema()),
+                ("allowed_floating", count("floating components allowed")),
+            ],
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// /projection_input
+
+/// One `/projection_input` message: everything one [`crate::projection::ProjectionStep::project`]
+/// call read, and what it wrote, so that `gpm replay --rerun` can run it again and compare.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectionInput {
+    /// Step.
+    pub step: u64,
+    /// Simulation time after the step.
+    pub time: f64,
+    /// Time step passed to the projection.
+    pub dt: f64,
+    /// Dimension `D`.
+    pub dimension: usize,
+    /// Particles (ghosts included).
+    pub particles: usize,
+    /// Rayon worker threads of the recording run.
+    pub threads: usize,
+    /// Neighbour list configuration.
+    pub neighbors: NeighborSpec,
+    /// Boundary.
+    pub boundary: BoundarySpec,
+    /// Projection parameters.
+    pub params: ProjectionSpec,
+    /// Positions `[n, D]`.
+    pub x: Array,
+    /// Volumes `[n]`.
+    pub vol: Array,
+    /// Role per particle `[n]` u8: 0 fluid, 1 Dirichlet, 2 ghost.
+    pub role_kind: Array,
+    /// Ghost source per particle `[n]` u32 (0 for non-ghosts).
+    pub ghost_source: Array,
+    /// Ghost wall bit set per particle `[n]` u8 (0 for non-ghosts).
+    pub ghost_walls: Array,
+    /// Predictor velocity `u*` `[n, D]`.
+    pub u_star: Array,
+    /// Pressure `pⁿ` before the projection `[n]`.
+    pub p_in: Array,
+    /// Velocity after the projection `[n, D]`.
+    pub u_out: Array,
+    /// Pressure after the projection `[n]`.
+    pub p_out: Array,
+    /// Increment `φ` `[n]`.
+    pub phi: Array,
+}
+
+/// Roles to the three arrays of [`ProjectionInput`].
+pub fn encode_roles(role: &[Role]) -> (Array, Array, Array) {
+    let kind: Vec<u8> = role.iter().map(role_code).collect();
+    let source: Vec<u32> = role
+        .iter()
+        .map(|r| match r {
+            Role::Ghost { source, .. } => *source,
+            _ => 0,
+        })
+        .collect();
+    let walls: Vec<u8> = role
+        .iter()
+        .map(|r| match r {
+            Role::Ghost { walls, .. } => *walls,
+            _ => 0,
+        })
+        .collect();
+    (
+        Array::from_u8(&kind),
+        Array::from_u32(&source),
+        Array::from_u8(&walls),
+    )
+}
+
+/// The three role arrays back to roles.
+pub fn decode_roles(kind: &Array, source: &Array, walls: &Array) -> Result<Vec<Role>, RecordError> {
+    let k = kind.to_u8("role_kind")?;
+    let s = source.to_u32("ghost_source")?;
+    let w = walls.to_u8("ghost_walls")?;
+    if s.len() != k.len() || w.len() != k.len() {
+        return Err(RecordError::Spec {
+            what: "roles",
+            reason: format!(
+                "role_kind has {}, ghost_source {}, ghost_walls {} entries",
+                k.len(),
+                s.len(),
+                w.len()
+            ),
+        });
+    }
+    k.iter()
+        .enumerate()
+        .map(|(i, &c)| match c {
+            0 => Ok(Role::Fluid),
+            1 => Ok(Role::Dirichlet),
+            2 => Ok(Role::Ghost {
+                source: s[i],
+                walls: w[i],
+            }),
+            c => Err(RecordError::Spec {
+                what: "role_kind",
+                reason: format!("particle {i}: unknown role code {c}"),
+            }),
+        })
+        .collect()
+}
+
+impl ProjectionInput {
+    /// JSON Schema of the message (schema name [`SCHEMA_PROJECTION`]).
+    pub fn schema() -> Value {
+        root(
+            SCHEMA_PROJECTION,
+            object(
+                "Inputs and outputs of one projection step, enough to re-run it: positions, volumes, roles, predictor velocity, dt, parameters",
+                &[
+                    ("step", count("step")),
+                    ("time", number("simulation time after the step")),
+                    ("dt", number("time step")),
+                    ("dimension", json!({"type": "integer", "enum": [2, 3], "description": "dimension D"})),
+                    ("particles", count("particles, ghosts included")),
+                    ("threads", count("rayon worker threads of the recording run")),
+                    ("neighbors", NeighborSpec::schema()),
+                    ("boundary", BoundarySpec::schema()),
+                    ("params", ProjectionSpec::schema()),
+                    ("x", Array::schema("positions [n, D] <f8")),
+                    ("vol", Array::schema("volumes [n] <f8")),
+                    ("role_kind", Array::schema("roles [n] |u1: 0 fluid, 1 Dirichlet, 2 ghost")),
+                    ("ghost_source", Array::schema("ghost source particle [n] <u4 (0 for non-ghosts)")),
+                    ("ghost_walls", Array::schema("ghost wall bit set [n] |u1 (0 for non-ghosts)")),
+                    ("u_star", Array::schema("predictor velocity u* [n, D] <f8")),
+                    ("p_in", Array::schema("pressure before the projection [n] <f8")),
+                    ("u_out", Array::schema("velocity after the projection [n, D] <f8")),
+                    ("p_out", Array::schema("pressure after the projection [n] <f8")),
+                    ("phi", Array::schema("pressure increment phi [n] <f8")),
+                ],
+            ),
+        )
+    }
+}
+
+/// The schema of every topic: `(topic, schema name, JSON Schema)`.
+pub fn all_schemas() -> Vec<(&'static str, &'static str, Value)> {
+    vec![
+        (TOPIC_CONFIG, SCHEMA_CONFIG, RunConfig::schema()),
+        (
+            TOPIC_DIAGNOSTICS,
+            SCHEMA_DIAGNOSTICS,
+            StepDiagnostics::schema(),
+        ),
+        (TOPIC_PARTICLES, SCHEMA_POINT_CLOUD, PointCloud::schema()),
+        (
+            TOPIC_PROJECTION,
+            SCHEMA_PROJECTION,
+            ProjectionInput::schema(),
+        ),
+    ]
+}

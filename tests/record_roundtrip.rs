@@ -1,0 +1,335 @@
+//! Recording round trips: write → read → equal, snapshots, projection inputs and their re-run,
+//! CSV and VTK export, and agreement with the mcap crate's own reader.
+
+use gpm::boundary::Walls;
+use gpm::flow::{FlowReport, Motion, Simulation};
+use gpm::projection::ProjectionCapture;
+use gpm::record::replay::{export_vtk, scan, Replay};
+use gpm::record::rerun::rerun_file;
+use gpm::record::schema::{
+    decode_roles, PointCloud, ProjectionInput, StepDiagnostics, TOPIC_CONFIG, TOPIC_DIAGNOSTICS,
+    TOPIC_PARTICLES, TOPIC_PROJECTION,
+};
+use gpm::record::{RecordLevel, RecordSummary, Recorder, RecorderOptions};
+use gpm::scene::cavity::{self, CavityConfig};
+use gpm::scene::taylor_green::{self, TaylorGreenConfig};
+use std::path::Path;
+
+/// (step, x, u, p) at a snapshot step.
+type Snapshot = (u64, Vec<[f64; 2]>, Vec<[f64; 2]>, Vec<f64>);
+
+struct Recorded {
+    reports: Vec<FlowReport>,
+    snapshots: Vec<Snapshot>,
+    captures: Vec<(u64, ProjectionCapture<2>)>,
+    allowed_floating: usize,
+    summary: RecordSummary,
+}
+
+fn cavity_config(motion: Motion) -> CavityConfig {
+    CavityConfig {
+        n: 12,
+        t_end: 10.0,
+        motion,
+        ..Default::default()
+    }
+}
+
+/// A small cavity run, recorded from our own loop (so that the projection capture is on).
+fn record_cavity(
+    path: &Path,
+    level: RecordLevel,
+    k: u64,
+    steps: usize,
+    motion: Motion,
+) -> Recorded {
+    let cfg = cavity_config(motion);
+    let mut sim: Simulation<2, Walls<2>> = cavity::build(&cfg).unwrap();
+    sim.projection.capture = true;
+    let config = serde_json::json!({ "scene": "cavity", "config": &cfg });
+    let mut rec = Recorder::create(path, level, k, &config).unwrap();
+    let mut out = Recorded {
+        reports: Vec::new(),
+        snapshots: Vec::new(),
+        captures: Vec::new(),
+        allowed_floating: sim.params.projection.allowed_floating,
+        summary: RecordSummary::default(),
+    };
+    for _ in 0..steps {
+        let r = sim.advance().unwrap();
+        rec.write_step(&r, &sim).unwrap();
+        if (r.step - 1) % k == 0 {
+            let p = &sim.particles;
+            out.snapshots
+                .push((r.step, p.x.clone(), p.u.clone(), p.p.clone()));
+            out.captures
+                .push((r.step, sim.projection.captured.clone().unwrap()));
+        }
+        out.reports.push(r);
+    }
+    out.summary = rec.finish().unwrap();
+    out
+}
+
+fn without_record_time(mut d: StepDiagnostics) -> StepDiagnostics {
+    d.timings.record = 0.0;
+    d
+}
+
+#[test]
+fn diagnostics_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let rec = record_cavity(&path, RecordLevel::Diagnostics, 10, 12, Motion::Eulerian);
+    assert_eq!(rec.summary.steps, 12);
+    assert_eq!(rec.summary.messages[TOPIC_DIAGNOSTICS], 12);
+    assert_eq!(rec.summary.bytes, std::fs::metadata(&path).unwrap().len());
+
+    let replay = Replay::open(&path).unwrap();
+    assert!(replay.scan.complete, "{:?}", replay.scan.damage);
+    assert!(replay.damage().is_none());
+    assert_eq!(replay.scan.announced_messages, Some(13));
+    assert_eq!(replay.steps.len(), 12);
+    for (got, r) in replay.steps.iter().zip(&rec.reports) {
+        let want = StepDiagnostics::from_report(r, rec.allowed_floating, 0.0);
+        assert_eq!(without_record_time(*got), want, "step {}", r.step);
+        assert!(got.timings.record >= 0.0);
+    }
+    // the recorder measures itself: step 1 has no previous step
+    assert_eq!(replay.steps[0].timings.record, 0.0);
+    assert!(replay.steps[1].timings.record > 0.0);
+
+    let config = replay.config.clone().expect("/config");
+    assert_eq!(config.level, RecordLevel::Diagnostics);
+    assert_eq!(config.format, "gpm-mcap");
+    assert_eq!(config.config["scene"], "cavity");
+    let cfg: CavityConfig = serde_json::from_value({
+        let mut c = config.config["config"].clone();
+        // ∞ is written as null by serde_json (see the report); the default is ∞
+        c["limits"].as_object_mut().unwrap().remove("dt_max");
+        c
+    })
+    .unwrap();
+    assert_eq!(cfg, cavity_config(Motion::Eulerian));
+
+    // log time = simulation time in ns, sequence = step; the mcap crate's reader agrees
+    let bytes = std::fs::read(&path).unwrap();
+    let msgs: Vec<_> = mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .collect::<Result<_, _>>()
+        .unwrap();
+    assert_eq!(msgs.len(), 13);
+    let diag: Vec<_> = msgs
+        .iter()
+        .filter(|m| m.channel.topic == TOPIC_DIAGNOSTICS)
+        .collect();
+    for (m, r) in diag.iter().zip(&rec.reports) {
+        assert_eq!(m.sequence as u64, r.step);
+        assert_eq!(m.log_time, (r.time * 1e9).round() as u64);
+        assert_eq!(m.channel.message_encoding, "json");
+        assert_eq!(m.channel.schema.as_ref().unwrap().encoding, "jsonschema");
+    }
+    assert_eq!(
+        msgs.iter()
+            .filter(|m| m.channel.topic == TOPIC_CONFIG)
+            .count(),
+        1
+    );
+
+    // summary statistics and CSV
+    let s = replay.summary();
+    assert_eq!(s.steps, 12);
+    assert_eq!(s.step_range, Some((1, 12)));
+    assert_eq!(s.connectivity_failures, 0);
+    let c0_max = rec
+        .reports
+        .iter()
+        .map(|r| r.projection.c0)
+        .fold(0.0, f64::max);
+    assert_eq!(s.c0.max, c0_max);
+    let text = s.to_string();
+    assert!(text.contains("complete"), "{text}");
+    let csv = dir.path().join("steps.csv");
+    replay.write_csv(&csv).unwrap();
+    let table = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = table.lines().collect();
+    assert_eq!(lines.len(), 13);
+    let cols = lines[0].split(',').count();
+    assert!(lines.iter().all(|l| l.split(',').count() == cols));
+    assert!(lines[1].starts_with("1,"));
+}
+
+#[test]
+fn level_none_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("none.mcap");
+    let rec = record_cavity(&path, RecordLevel::None, 10, 2, Motion::Eulerian);
+    assert!(!path.exists());
+    assert_eq!(rec.summary.path, None);
+    assert_eq!(rec.summary.steps, 0);
+}
+
+#[test]
+fn full_round_trip_and_exact_rerun() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("full.mcap");
+    let k = 3;
+    let rec = record_cavity(&path, RecordLevel::Full, k, 8, Motion::Eulerian);
+    // snapshots at steps 1, 4, 7
+    assert_eq!(rec.summary.messages[TOPIC_PARTICLES], 3);
+    assert_eq!(rec.summary.messages[TOPIC_PROJECTION], 3);
+    assert!(rec.summary.notes.is_empty(), "{:?}", rec.summary.notes);
+
+    let mut clouds = Vec::new();
+    let mut inputs = Vec::new();
+    let sc = scan(
+        &path,
+        |m| {
+            match m.topic {
+                TOPIC_PARTICLES => {
+                    clouds.push((m.sequence as u64, m.log_time, m.decode::<PointCloud>()?))
+                }
+                TOPIC_PROJECTION => inputs.push(m.decode::<ProjectionInput>()?),
+                _ => {}
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    assert!(sc.complete);
+    assert_eq!(sc.count(TOPIC_DIAGNOSTICS), 8);
+    assert_eq!(clouds.len(), 3);
+
+    for ((step, log_time, cloud), (s, x, u, p)) in clouds.iter().zip(&rec.snapshots) {
+        assert_eq!(step, s);
+        let t = rec.reports[*s as usize - 1].time;
+        assert_eq!(*log_time, (t * 1e9).round() as u64);
+        assert_eq!(
+            cloud.timestamp.sec as u64 * 1_000_000_000 + cloud.timestamp.nsec as u64,
+            *log_time
+        );
+        assert_eq!(cloud.len(), x.len());
+        let cols = cloud
+            .decode(&["x", "y", "z", "vx", "vy", "p", "role"])
+            .unwrap();
+        let col = |k: usize| cols[k].as_ref().unwrap();
+        for i in 0..x.len() {
+            assert_eq!(col(0)[i], x[i][0] as f32 as f64);
+            assert_eq!(col(1)[i], x[i][1] as f32 as f64);
+            assert_eq!(col(2)[i], 0.0);
+            assert_eq!(col(3)[i], u[i][0] as f32 as f64);
+            assert_eq!(col(4)[i], u[i][1] as f32 as f64);
+            assert_eq!(col(5)[i], p[i] as f32 as f64);
+        }
+        assert!(col(6).contains(&2.0), "ghosts are in the cloud");
+    }
+
+    // projection inputs are bit-exact copies of the capture
+    assert_eq!(inputs.len(), 3);
+    for (m, (s, c)) in inputs.iter().zip(&rec.captures) {
+        assert_eq!(m.step, *s);
+        assert_eq!(m.dimension, 2);
+        assert_eq!(m.dt.to_bits(), c.dt.to_bits());
+        assert_eq!(m.x.to_vectors::<2>("x").unwrap(), c.x);
+        assert_eq!(m.vol.to_f64("vol").unwrap(), c.vol);
+        assert_eq!(
+            decode_roles(&m.role_kind, &m.ghost_source, &m.ghost_walls).unwrap(),
+            c.role
+        );
+        assert_eq!(m.u_star.to_vectors::<2>("u_star").unwrap(), c.u_star);
+        assert_eq!(m.p_in.to_f64("p_in").unwrap(), c.p_in);
+        assert_eq!(m.u_out.to_vectors::<2>("u_out").unwrap(), c.u_out);
+        assert_eq!(m.p_out.to_f64("p_out").unwrap(), c.p_out);
+        assert_eq!(m.phi.to_f64("phi").unwrap(), c.phi);
+        let walls: Walls<2> = m.boundary.to_walls().unwrap();
+        assert_eq!(walls, Walls::cavity(1.0, 1.0));
+    }
+
+    // Eulerian + Cholesky: the re-run through the current build is bit-identical
+    let r = rerun_file(&path, |_, _| {}).unwrap();
+    assert_eq!(r.steps.len(), 3);
+    assert_eq!(r.identical(), 3, "{:?}", r.steps);
+    assert_eq!(r.max_differences(), (0.0, 0.0, 0.0));
+
+    // VTK export: one file per snapshot and a ParaView collection
+    let vtk = dir.path().join("vtk");
+    let out = export_vtk(&path, &vtk, |_, _| {}).unwrap();
+    assert_eq!(out.files.len(), 3);
+    let first = std::fs::read_to_string(&out.files[0]).unwrap();
+    let n = rec.snapshots[0].1.len();
+    assert!(first.contains(&format!("NumberOfPoints=\"{n}\"")));
+    assert!(first.contains("Name=\"velocity\"") && first.contains("Name=\"p\""));
+    assert!(first.trim_end().ends_with("</VTKFile>"));
+    let pvd = std::fs::read_to_string(&out.collection).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 3);
+    assert!(pvd.contains("particles_000004.vtp"));
+}
+
+#[test]
+fn lagrangian_rerun_is_close() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lag.mcap");
+    record_cavity(&path, RecordLevel::Full, 4, 9, Motion::Lagrangian);
+    let r = rerun_file(&path, |_, _| {}).unwrap();
+    assert_eq!(r.steps.len(), 3);
+    // identical unless the neighbour candidates (matrix pattern) differ: round-off only
+    let (du, dp, dphi) = r.max_relative_differences();
+    assert!(du < 1e-9 && dp < 1e-9 && dphi < 1e-9, "{:?}", r.steps);
+    eprintln!(
+        "Lagrangian rerun: {}/{} identical, relative differences u {du:.2e} p {dp:.2e} phi {dphi:.2e}",
+        r.identical(),
+        r.steps.len()
+    );
+}
+
+#[test]
+fn periodic_projection_input_reruns() {
+    // Taylor–Green: periodic box, no ghosts
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("tg.mcap");
+    let cfg = TaylorGreenConfig {
+        n: 12,
+        t_end: 1.0,
+        ..Default::default()
+    };
+    let mut sim = taylor_green::build(&cfg).unwrap();
+    sim.projection.capture = true;
+    let options = RecorderOptions {
+        flush_every: 2,
+        ..RecorderOptions::new(RecordLevel::Full, 2)
+    };
+    let mut rec = Recorder::create_with(
+        &path,
+        options,
+        &serde_json::json!({"scene": "taylor_green"}),
+    )
+    .unwrap();
+    for _ in 0..4 {
+        let r = sim.advance().unwrap();
+        rec.write_step(&r, &sim).unwrap();
+    }
+    let s = rec.finish().unwrap();
+    assert_eq!(s.messages[TOPIC_PROJECTION], 2);
+    let r = rerun_file(&path, |_, _| {}).unwrap();
+    assert_eq!(r.steps.len(), 2);
+    assert_eq!(r.identical(), 2, "{:?}", r.steps);
+    let replay = Replay::open(&path).unwrap();
+    assert_eq!(replay.config.unwrap().flush_every, 2);
+}
+
+#[test]
+fn missing_capture_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nocap.mcap");
+    let cfg = cavity_config(Motion::Eulerian);
+    let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &serde_json::json!({})).unwrap();
+    cavity::run(&CavityConfig { t_end: 0.05, ..cfg }, |r, sim| {
+        Ok(rec.write_step(r, sim)?)
+    })
+    .unwrap();
+    let s = rec.finish().unwrap();
+    assert!(s.messages[TOPIC_PARTICLES] > 0);
+    assert!(!s.messages.contains_key(TOPIC_PROJECTION));
+    assert_eq!(s.notes.len(), 1, "{:?}", s.notes);
+}
