@@ -406,8 +406,8 @@ fn periodic_errors<const D: usize>(n: usize, hdx: f64, w: Weight) -> [f64; 3] {
         let x = &f.x[i];
         let l: f64 = (0..D).map(|b| d2val(x, b)).sum();
         e[0] = e[0].max((lap[i] - l).abs());
-        for b in 0..D {
-            e[1] = e[1].max((grad[i][b] - dval(x, b)).abs());
+        for (b, g) in grad[i].iter().enumerate() {
+            e[1] = e[1].max((g - dval(x, b)).abs());
         }
         let dv: f64 = (0..D).map(|a| dval(&shift(x, a), a)).sum();
         e[2] = e[2].max((div[i] - dv).abs());

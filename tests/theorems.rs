@@ -360,12 +360,12 @@ fn run_lemma_4_4<const D: usize>(cases: u32, seed: u8) {
 
 #[test]
 fn lemma_4_4_property_2d() {
-    run_lemma_4_4::<2>(128, 44);
+    run_lemma_4_4::<2>(256, 44);
 }
 
 #[test]
 fn lemma_4_4_property_3d() {
-    run_lemma_4_4::<3>(48, 43);
+    run_lemma_4_4::<3>(96, 43);
 }
 
 /// Lemma 4.3 as a property: both identities to round-off on random families.
@@ -389,12 +389,12 @@ fn run_lemma_4_3<const D: usize>(cases: u32, seed: u8) {
 
 #[test]
 fn lemma_4_3_property_2d() {
-    run_lemma_4_3::<2>(96, 42);
+    run_lemma_4_3::<2>(192, 42);
 }
 
 #[test]
 fn lemma_4_3_property_3d() {
-    run_lemma_4_3::<3>(32, 41);
+    run_lemma_4_3::<3>(64, 41);
 }
 
 /// Theorem 4.5 on one family: solve `−Δh u = ∇̂h·f̂` and check
@@ -511,12 +511,12 @@ fn run_theorem_4_5<const D: usize>(cases: u32, seed: u8) {
 
 #[test]
 fn theorem_4_5_property_2d() {
-    run_theorem_4_5::<2>(96, 45);
+    run_theorem_4_5::<2>(256, 45);
 }
 
 #[test]
 fn theorem_4_5_property_3d() {
-    run_theorem_4_5::<3>(32, 46);
+    run_theorem_4_5::<3>(96, 46);
 }
 
 #[test]
