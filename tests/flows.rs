@@ -1,0 +1,330 @@
+//! Flows built on the projection: a short cavity against Ghia et al. (checked with code
+//! independent of the crate's own error computation), Taylor–Green against the exact solution
+//! (accuracy, spatial and temporal orders), and a hydrostatic column under a Dirichlet band.
+
+use gpm::boundary::{Wall, Walls};
+use gpm::flow::{FlowParams, Integrator, Motion, Simulation, TimeStepLimits, VolumeRule};
+use gpm::geometry::lattice;
+use gpm::kernel::Weight;
+use gpm::neighbors::{NeighborConfig, Periodicity};
+use gpm::particles::{Particles, Role};
+use gpm::projection::{ProjectionParams, Scheme};
+use gpm::scene::cavity::{self, CavityConfig};
+use gpm::scene::taylor_green::{self, TaylorGreenConfig};
+use std::path::Path;
+
+/// Reads a two-column CSV (with `#` comments and a header), written independently of
+/// `gpm::reference`.
+fn read_csv(path: &Path) -> Vec<(f64, f64)> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+    text.lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .skip(1)
+        .map(|l| {
+            let mut it = l.split(',').map(|v| v.trim().parse::<f64>().unwrap());
+            (it.next().unwrap(), it.next().unwrap())
+        })
+        .collect()
+}
+
+/// Piecewise-linear interpolation on sorted abscissae.
+fn lerp(table: &[(f64, f64)], q: f64) -> f64 {
+    for w in table.windows(2) {
+        let ((x0, y0), (x1, y1)) = (w[0], w[1]);
+        if q >= x0 && q <= x1 {
+            return y0 + (y1 - y0) * (q - x0) / (x1 - x0);
+        }
+    }
+    panic!("{q} outside the table");
+}
+
+fn rms_against(reference: &[(f64, f64)], profile: &[(f64, f64)]) -> f64 {
+    let inner: Vec<f64> = reference
+        .iter()
+        .filter(|(p, _)| *p > 0.0 && *p < 1.0)
+        .map(|(p, r)| lerp(profile, *p) - r)
+        .collect();
+    (inner.iter().map(|e| e * e).sum::<f64>() / inner.len() as f64).sqrt()
+}
+
+#[test]
+fn cavity_re100_short_run_against_ghia() {
+    let cfg = CavityConfig {
+        n: 24,
+        t_end: 30.0,
+        ..Default::default()
+    };
+    let mut steps = 0;
+    let res = cavity::run(&cfg, |rep, _| {
+        let p = &rep.projection;
+        assert!(
+            p.stability_ratio <= 1.0,
+            "step {}: ratio {}",
+            rep.step,
+            p.stability_ratio
+        );
+        assert!(p.kinetic_energy.is_finite() && p.max_speed.is_finite());
+        assert_eq!(
+            p.connectivity.floating, 1,
+            "one floating (all-Neumann) component"
+        );
+        assert_eq!(p.connectivity.isolated, 0);
+        assert!(p.div_after.is_finite());
+        steps += 1;
+        Ok(())
+    })
+    .unwrap();
+    assert!(res.steady, "not steady by t = {}", res.t_end);
+    assert_eq!(steps as u64, res.steps);
+    // the crate's own errors
+    let g = res.ghia.expect("Re 100 table");
+    // independent check: written profiles against the data files
+    let dir = std::env::temp_dir().join(format!("gpm_cavity_test_{}", std::process::id()));
+    cavity::write_tables(&dir, &res, &cfg).unwrap();
+    let pu = read_csv(&dir.join("profile_u.csv"));
+    let pv = read_csv(&dir.join("profile_v.csv"));
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let gu = read_csv(&data.join("ghia1982_re100_u_vertical.csv"));
+    let gv = read_csv(&data.join("ghia1982_re100_v_horizontal.csv"));
+    let (ru, rv) = (rms_against(&gu, &pu), rms_against(&gv, &pv));
+    assert!(
+        (ru - g.rms_u).abs() < 1e-6 && (rv - g.rms_v).abs() < 1e-6,
+        "{ru} {rv} vs {g:?}"
+    );
+    // coarse bound: the target is 1 % at n = 50; at n = 24 (half the resolution) 2.5 %
+    assert!(ru < 0.025 && rv < 0.025, "RMS u {ru}, v {rv}");
+    // profile sanity independent of Ghia: wall values and the lid
+    assert!(lerp(&pu, 0.0).abs() < 0.05 && (lerp(&pu, 1.0) - 1.0).abs() < 0.05);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn taylor_green_accuracy_and_spatial_order() {
+    let mut errs = Vec::new();
+    for n in [16usize, 32] {
+        let cfg = TaylorGreenConfig {
+            n,
+            t_end: 0.5,
+            ..Default::default()
+        };
+        let r = taylor_green::run(&cfg, |rep, _| {
+            assert!(rep.projection.stability_ratio <= 1.0);
+            Ok(())
+        })
+        .unwrap();
+        errs.push(r.errors.l1_velocity_error);
+    }
+    let order = (errs[0] / errs[1]).log2();
+    assert!(order > 1.5, "spatial order {order} ({errs:?})");
+    // the bar is 1 % at n = 50, t = 2; n = 32 at t = 0.5 must already be below it
+    assert!(errs[1] < 0.01, "{errs:?}");
+}
+
+/// Temporal orders with the spatial error cancelled exactly: every run is compared with a
+/// reference on the same particles with a much smaller Δt.
+#[test]
+fn incremental_schemes_have_higher_temporal_order() {
+    let state = |scheme: Scheme, dt: f64| -> Vec<[f64; 2]> {
+        let mut cfg = TaylorGreenConfig {
+            n: 16,
+            t_end: 0.16,
+            scheme,
+            ..Default::default()
+        };
+        cfg.limits.dt_fixed = Some(dt);
+        let mut sim = taylor_green::build(&cfg).unwrap();
+        for _ in 0..(0.16 / dt).round() as usize {
+            sim.advance().unwrap();
+        }
+        sim.particles.u
+    };
+    let diff = |a: &[[f64; 2]], b: &[[f64; 2]]| -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| ((x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2)).sqrt())
+            .sum::<f64>()
+    };
+    let mut orders = Vec::new();
+    for scheme in [
+        Scheme::NonIncremental,
+        Scheme::Incremental,
+        Scheme::Rotational,
+    ] {
+        let reference = state(scheme, 0.0005);
+        let e1 = diff(&state(scheme, 0.02), &reference);
+        let e2 = diff(&state(scheme, 0.01), &reference);
+        orders.push((e1 / e2).log2());
+    }
+    assert!(orders[0] < 1.3, "non-incremental order {orders:?}");
+    assert!(
+        orders[1] > 1.7 && orders[2] > 1.7,
+        "incremental orders {orders:?}"
+    );
+}
+
+/// A fluid column at rest under gravity, walls on three sides (mirror ghosts) and a Dirichlet
+/// band (`p = 0`) above the free surface: the step must reach the hydrostatic state
+/// `u = 0`, `p = ρ g (1 − y)`, with an anchored component (no floating one).
+fn hydrostatic_error(n: usize, scheme: Scheme) -> (f64, f64) {
+    let dx = 1.0 / n as f64;
+    let h = 3.0 * dx;
+    let g = 1.0;
+    let mut p = Particles::<2>::new();
+    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+        p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
+    }
+    // band above the surface, wide enough to cover the corner images
+    for x in lattice([-4.0 * dx, 1.0], [1.0 + 4.0 * dx, 1.0 + 4.0 * dx], dx) {
+        p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Dirichlet);
+    }
+    let wall = |axis, position, inward| Wall {
+        axis,
+        position,
+        inward,
+        velocity: [0.0; 2],
+    };
+    let walls = Walls {
+        walls: vec![wall(0, 0.0, 1.0), wall(0, 1.0, -1.0), wall(1, 0.0, 1.0)],
+        periodic: Periodicity::none(),
+    };
+    let mut projection = ProjectionParams::<2>::new(0.01);
+    projection.gravity = [0.0, -g];
+    projection.scheme = scheme;
+    projection.allowed_floating = 0;
+    let params = FlowParams {
+        projection,
+        limits: TimeStepLimits::default(),
+        motion: Motion::Eulerian,
+        integrator: Integrator::Ab2,
+        shifting: None,
+        volumes: VolumeRule::NumberDensity,
+        dx,
+    };
+    let mut sim = Simulation::new(
+        p,
+        walls,
+        NeighborConfig::new(Weight::WendlandC2, h, 0.3 * h),
+        params,
+    )
+    .unwrap();
+    for _ in 0..100 {
+        let r = sim.advance().unwrap();
+        assert_eq!(r.projection.connectivity.floating, 0);
+        assert!(r.projection.stability_ratio <= 1.0);
+    }
+    let pr = &sim.particles;
+    let mut max_u = 0.0f64;
+    let mut err = 0.0f64;
+    let mut norm = 0.0f64;
+    for i in 0..pr.len() {
+        if pr.role[i].is_fluid() {
+            max_u = max_u.max(pr.u[i][0].hypot(pr.u[i][1]));
+            let exact = g * (1.0 - pr.x[i][1]);
+            err += (pr.p[i] - exact).abs();
+            norm += exact;
+        }
+    }
+    (max_u / (g * sim.time), err / norm)
+}
+
+#[test]
+fn hydrostatic_column_under_a_dirichlet_band() {
+    // non-incremental: p = φ solves the compact problem every step; the band holds p = 0 from
+    // y = 1 + Δx/2 on, so the pressure converges at first order at least
+    let r: Vec<(f64, f64)> = [10, 20, 40]
+        .iter()
+        .map(|&n| hydrostatic_error(n, Scheme::NonIncremental))
+        .collect();
+    for w in r.windows(2) {
+        // the non-incremental splitting leaves a spurious velocity that falls with Δx
+        assert!(w[1].0 < w[0].0, "spurious velocity does not fall: {r:?}");
+        let order = (w[0].1 / w[1].1).log2();
+        assert!(order > 0.8, "pressure order {order}: {r:?}");
+    }
+    // incremental schemes carry ∇h pⁿ in the predictor, so the O(Δt) splitting velocity of the
+    // non-incremental scheme must be much smaller (their pressure keeps an odd-even mode that
+    // ∇h does not see — see the README's known limitations — so only u is checked)
+    for scheme in [Scheme::Incremental, Scheme::Rotational] {
+        let (u, _) = hydrostatic_error(20, scheme);
+        assert!(
+            u < 0.2 * r[1].0,
+            "{scheme}: max |u| / (g t) = {u} vs non-incremental {}",
+            r[1].0
+        );
+    }
+}
+
+/// Body-force-driven Poiseuille flow: periodic in x, no-slip walls at y = 0 and 1; the steady
+/// state is `u = g y (1 − y) / (2ν)` and second order in Δx is expected.
+#[test]
+fn poiseuille_channel_with_periodic_axis_and_walls() {
+    let run = |n: usize| -> f64 {
+        let dx = 1.0 / n as f64;
+        let (g, nu) = (1.0, 0.25);
+        let mut p = Particles::<2>::new();
+        for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+            p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
+        }
+        let walls = Walls {
+            walls: vec![
+                Wall {
+                    axis: 1,
+                    position: 0.0,
+                    inward: 1.0,
+                    velocity: [0.0; 2],
+                },
+                Wall {
+                    axis: 1,
+                    position: 1.0,
+                    inward: -1.0,
+                    velocity: [0.0; 2],
+                },
+            ],
+            periodic: Periodicity {
+                lo: [0.0, 0.0],
+                len: [1.0, 0.0],
+            },
+        };
+        let mut projection = ProjectionParams::<2>::new(nu);
+        projection.gravity = [g, 0.0];
+        let params = FlowParams {
+            projection,
+            limits: TimeStepLimits {
+                dt_fixed: Some(0.02),
+                ..Default::default()
+            },
+            motion: Motion::Eulerian,
+            integrator: Integrator::Ab2,
+            shifting: None,
+            volumes: VolumeRule::NumberDensity,
+            dx,
+        };
+        let h = 3.0 * dx;
+        let mut sim = Simulation::new(
+            p,
+            walls,
+            NeighborConfig::new(Weight::WendlandC2, h, 0.0),
+            params,
+        )
+        .unwrap();
+        // diffusion time 1/ν = 4: run to t = 8 (transient e^{−π²νt} ≈ 7e-9)
+        while sim.time < 8.0 {
+            sim.advance().unwrap();
+        }
+        let pr = &sim.particles;
+        let (mut err, mut norm) = (0.0f64, 0.0f64);
+        for i in 0..pr.len() {
+            if pr.role[i].is_fluid() {
+                let y = pr.x[i][1];
+                let exact = g * y * (1.0 - y) / (2.0 * nu);
+                err = err.max((pr.u[i][0] - exact).abs() + pr.u[i][1].abs());
+                norm = norm.max(exact);
+            }
+        }
+        err / norm
+    };
+    let (e1, e2) = (run(16), run(32));
+    let order = (e1 / e2).log2();
+    assert!(order > 1.5, "order {order}: {e1} {e2}");
+    assert!(e2 < 0.01, "max relative error {e2} at n = 32");
+}
