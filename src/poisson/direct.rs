@@ -14,7 +14,7 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
-    SymmetricOrdering,
+    SymbolicCholeskyRaw, SymmetricOrdering,
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
@@ -133,7 +133,12 @@ impl Direct {
                 )
                 .map_err(|e| match e {
                     faer::linalg::solvers::LltError::NonPositivePivot { index } => {
-                        // `index` is in the permuted order
+                        // `index` is in the permuted order. faer 0.24's simplicial kernel
+                        // reports the failing column as `k + 1`, its supernodal kernel as `k`.
+                        let index = match symbolic.raw() {
+                            SymbolicCholeskyRaw::Simplicial(_) => index - 1,
+                            SymbolicCholeskyRaw::Supernodal(_) => index,
+                        };
                         let unknown = symbolic
                             .perm()
                             .map(|p| p.arrays().0[index])
