@@ -531,3 +531,39 @@ fn empty_and_single_particle_sets() {
     assert_eq!(nl.len(), 1);
     assert_eq!(nl.row(0).len(), 0);
 }
+
+#[test]
+fn neighbor_stats_match_brute_force() {
+    use gpm::diagnostics::neighbor_stats;
+    use gpm::particles::Role;
+    let f = dirichlet_box::<2>(Spec::lattice(10, 2.3, Weight::CubicSpline).jittered(0.45, 71));
+    let s = neighbor_stats(&f.nl, &f.role);
+    let want = reference(f.nl.config(), &f.x);
+    let fluid: Vec<usize> = (0..f.x.len())
+        .filter(|&i| f.role[i] == Role::Fluid)
+        .collect();
+    let counts: Vec<usize> = fluid.iter().map(|&i| want[i].len()).collect();
+    assert_eq!(s.min_neighbors, *counts.iter().min().unwrap());
+    assert_eq!(s.max_neighbors, *counts.iter().max().unwrap());
+    let mean = counts.iter().sum::<usize>() as f64 / counts.len() as f64;
+    assert!((s.mean_neighbors - mean).abs() < 1e-12);
+    // closest pair with a fluid end, by brute force over all pairs
+    let mut best = (f64::INFINITY, 0, 0);
+    for &i in &fluid {
+        for (j, xj) in f.x.iter().enumerate() {
+            if j != i {
+                let r = ((xj[0] - f.x[i][0]).powi(2) + (xj[1] - f.x[i][1]).powi(2)).sqrt();
+                if r < best.0 {
+                    best = (r, i, j);
+                }
+            }
+        }
+    }
+    assert!((s.min_distance - best.0).abs() <= 1e-15);
+    let (a, b) = s.closest_pair.unwrap();
+    let mut got = [a, b];
+    got.sort_unstable();
+    let mut exp = [best.1, best.2];
+    exp.sort_unstable();
+    assert_eq!(got, exp);
+}

@@ -540,6 +540,32 @@ fn semi_regularity_is_the_largest_shepard_sum() {
         semi_regularity(&f.nl, &f.vol, &f.role, Region::OmegaH),
         max_over(&omega_h)
     );
+    // ℓ2 norms: (Σ_{i∈S} ω_i |φ_i|²)^{1/2}
+    let phi = f.random_scalar(3);
+    let psi = f.random_vector(4);
+    let l2 = |rows: &[usize]| {
+        rows.iter()
+            .map(|&i| f.vol[i] * phi[i] * phi[i])
+            .sum::<f64>()
+            .sqrt()
+    };
+    let l2v = |rows: &[usize]| {
+        rows.iter()
+            .map(|&i| f.vol[i] * (psi[i][0] * psi[i][0] + psi[i][1] * psi[i][1]))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let n_omega = gpm::diagnostics::norm_l2(&f.vol, &phi, &f.role, Region::Omega);
+    assert!(rel_diff(n_omega, l2(&omega)) < 1e-14);
+    let n_omega_v = norm_l2_vec(&f.vol, &psi, &f.role, Region::Omega);
+    assert!(rel_diff(n_omega_v, l2v(&omega)) < 1e-14);
+    // φ, ψ vanish on the band, so the Ω_H norms equal the Ω norms
+    assert!(
+        rel_diff(
+            gpm::diagnostics::norm_l2(&f.vol, &phi, &f.role, Region::OmegaH),
+            n_omega
+        ) < 1e-14
+    );
     // the ratio helper: √(d c0) ‖f‖ in the denominator
     assert!((stability_ratio(3.0, 2.0, 0.5, 2) - 3.0 / (2.0 * 0.5)).abs() < 1e-15);
     assert_eq!(stability_ratio(0.0, 1.0, 0.0, 3), 0.0);
