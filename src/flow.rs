@@ -183,6 +183,101 @@ pub struct FlowParams<const D: usize> {
     pub dx: f64,
 }
 
+/// A stage of a flow step. A [`StagePlan`] lists the stages a scene needs; the others never run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// Ghost images of fluid particles across walls (placement and value fills).
+    Ghosts,
+    /// Periodic wrap of positions and minimum-image pairs.
+    Periodic,
+    /// Neighbour re-measurement after particles move (Lagrangian frame).
+    MovingNeighbors,
+    /// Volumes `ω = 1/Σw` recomputed.
+    Volumes,
+    /// Convective term `−(u·∇h)u` (Eulerian frame).
+    Convection,
+    /// Explicit part of the viscous term.
+    ViscousExplicit,
+    /// Implicit (Helmholtz) part of the viscous term.
+    ViscousImplicit,
+    /// Body force.
+    BodyForce,
+    /// `−∇h pⁿ/ρ` in the predictor (incremental schemes).
+    PressureGradient,
+    /// Advection with `u*` (Lagrangian frame).
+    Advection,
+    /// Source, Poisson solve and correction.
+    Projection,
+    /// Rotational pressure correction `−ρθν ∇̂h·u*`.
+    RotationalCorrection,
+    /// Particle shifting.
+    Shifting,
+    /// A Dirichlet band (free surface / open boundary) anchors the pressure.
+    DirichletBand,
+}
+
+/// What a scene has, and so which stages run (MISSION §4: "a scene skips every stage it does not
+/// need"). Built once by [`Simulation::new`] from the boundary, the particles and the parameters.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StagePlan {
+    /// The stages, in execution order.
+    pub stages: Vec<Stage>,
+}
+
+impl StagePlan {
+    /// The plan for a boundary with/without ghosts and periodic axes, the roles present, and the
+    /// parameters.
+    pub fn new<const D: usize>(
+        has_ghosts: bool,
+        periodic: bool,
+        has_dirichlet: bool,
+        params: &FlowParams<D>,
+    ) -> Self {
+        let pr = &params.projection;
+        let lagrangian = params.motion == Motion::Lagrangian;
+        let mut s = Vec::new();
+        let mut add = |c: bool, st: Stage| {
+            if c {
+                s.push(st)
+            }
+        };
+        add(has_ghosts, Stage::Ghosts);
+        add(periodic, Stage::Periodic);
+        add(has_dirichlet, Stage::DirichletBand);
+        add(params.volumes == VolumeRule::NumberDensity, Stage::Volumes);
+        add(!lagrangian, Stage::Convection);
+        add(
+            pr.nu > 0.0 && pr.viscous_theta < 1.0,
+            Stage::ViscousExplicit,
+        );
+        add(pr.gravity.iter().any(|&g| g != 0.0), Stage::BodyForce);
+        add(
+            pr.scheme != crate::projection::Scheme::NonIncremental,
+            Stage::PressureGradient,
+        );
+        add(
+            pr.nu > 0.0 && pr.viscous_theta > 0.0,
+            Stage::ViscousImplicit,
+        );
+        add(lagrangian, Stage::Advection);
+        add(lagrangian, Stage::MovingNeighbors);
+        add(true, Stage::Projection);
+        add(
+            pr.scheme == crate::projection::Scheme::Rotational
+                && pr.nu > 0.0
+                && pr.viscous_theta > 0.0,
+            Stage::RotationalCorrection,
+        );
+        add(lagrangian && params.shifting.is_some(), Stage::Shifting);
+        StagePlan { stages: s }
+    }
+    /// True when the plan has `stage`.
+    pub fn has(&self, stage: Stage) -> bool {
+        self.stages.contains(&stage)
+    }
+}
+
 /// A flow step's report: the projection's plus what the flow solver did around it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct FlowReport {
@@ -220,6 +315,7 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     pub time: f64,
     /// Steps taken.
     pub steps: u64,
+    plan: StagePlan,
     grad: Vec<[[f64; D]; D]>,
     work: Vec<[f64; D]>,
     gp: Vec<[f64; D]>,
@@ -248,8 +344,19 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         particles.validate()?;
         let config = neighbors.with_periodicity(boundary.periodicity());
+        let plan = StagePlan::new(
+            boundary.has_ghosts(),
+            config.periodic.any(),
+            particles
+                .role
+                .iter()
+                .any(|r| *r == crate::particles::Role::Dirichlet),
+            &params,
+        );
         let reach = config.h + config.skin;
-        boundary.make_ghosts(&mut particles, reach);
+        if plan.has(Stage::Ghosts) {
+            boundary.make_ghosts(&mut particles, reach);
+        }
         let nl = NeighborList::build(config, &particles.x)?;
         let mut sim = Simulation {
             particles,
@@ -259,6 +366,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             projection: ProjectionStep::new(),
             time: 0.0,
             steps: 0,
+            plan,
             grad: Vec::new(),
             work: Vec::new(),
             gp: Vec::new(),
@@ -269,8 +377,13 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         Ok(sim)
     }
 
+    /// The stages this simulation runs.
+    pub fn plan(&self) -> &StagePlan {
+        &self.plan
+    }
+
     fn update_volumes(&mut self) {
-        if self.params.volumes == VolumeRule::NumberDensity {
+        if self.plan.has(Stage::Volumes) {
             let v = number_density_volumes(&self.nl);
             for (i, r) in self.particles.role.iter().enumerate() {
                 if r.is_fluid() {
@@ -278,18 +391,25 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 }
             }
             // ghosts copy their source's volume
-            self.boundary.place_ghosts(&mut self.particles);
+            if self.plan.has(Stage::Ghosts) {
+                self.boundary.place_ghosts(&mut self.particles);
+            }
         }
     }
 
     /// Brings ghosts, neighbours and volumes up to date with the positions.
     fn refresh(&mut self) -> Result<bool, Error> {
-        self.boundary.place_ghosts(&mut self.particles);
+        let ghosts = self.plan.has(Stage::Ghosts);
+        if ghosts {
+            self.boundary.place_ghosts(&mut self.particles);
+        }
         let mut rebuilt = false;
         if self.nl.needs_rebuild(&self.particles.x) {
-            let c = self.nl.config();
-            let reach = c.h + c.skin;
-            self.boundary.make_ghosts(&mut self.particles, reach);
+            if ghosts {
+                let c = self.nl.config();
+                let reach = c.h + c.skin;
+                self.boundary.make_ghosts(&mut self.particles, reach);
+            }
             self.nl.invalidate();
             rebuilt = true;
         }
@@ -376,14 +496,16 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let mut neighbors_seconds = t0.elapsed().as_secs_f64();
         let (dt, dt_limit) = self.time_step();
         let n = self.particles.len();
-        let lagrangian = self.params.motion == Motion::Lagrangian;
-        let accel = if !lagrangian {
+        let lagrangian = self.plan.has(Stage::Advection);
+        let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
-            self.boundary.fill_vector(
-                &self.particles.role,
-                &mut self.particles.u,
-                VectorKind::Velocity,
-            );
+            if self.plan.has(Stage::Ghosts) {
+                self.boundary.fill_vector(
+                    &self.particles.role,
+                    &mut self.particles.u,
+                    VectorKind::Velocity,
+                );
+            }
             self.grad.resize(n, [[0.0; D]; D]);
             grad_vec_into(
                 &self.nl,
@@ -456,7 +578,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         )?;
         report.timings.predictor = t_pred;
         let mut max_shift = 0.0;
-        if lagrangian && self.params.shifting.is_some() {
+        if self.plan.has(Stage::Shifting) {
             let t1 = Instant::now();
             max_shift = self.shift(dt)?;
             if max_shift > 0.0 {
@@ -534,8 +656,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let p = &mut self.particles;
         if sh.correct {
             // Taylor correction of u and p to the shifted position (gradients before the shift)
-            self.boundary
-                .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+            if self.plan.has(Stage::Ghosts) {
+                self.boundary
+                    .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+            }
             self.grad.resize(n, [[0.0; D]; D]);
             grad_vec_into(&self.nl, &p.vol, &p.u, &mut self.grad);
             self.gp.resize(n, [0.0; D]);

@@ -328,3 +328,104 @@ fn poiseuille_channel_with_periodic_axis_and_walls() {
     assert!(order > 1.5, "order {order}: {e1} {e2}");
     assert!(e2 < 0.01, "max relative error {e2} at n = 32");
 }
+
+/// A scene's plan holds only the stages it needs, and the ones it lacks never run.
+#[test]
+fn stage_plans_follow_the_scene() {
+    use gpm::boundary::{Boundary, PeriodicBox, VectorKind};
+    use gpm::flow::Stage::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let tg = taylor_green::build(&TaylorGreenConfig {
+        n: 16,
+        ..Default::default()
+    })
+    .unwrap();
+    let plan = tg.plan();
+    for s in [
+        Periodic,
+        Convection,
+        ViscousExplicit,
+        ViscousImplicit,
+        PressureGradient,
+        RotationalCorrection,
+        Projection,
+    ] {
+        assert!(plan.has(s), "Taylor–Green lacks {s:?}: {plan:?}");
+    }
+    for s in [
+        Ghosts,
+        BodyForce,
+        DirichletBand,
+        Advection,
+        Shifting,
+        MovingNeighbors,
+    ] {
+        assert!(!plan.has(s), "Taylor–Green has {s:?}: {plan:?}");
+    }
+    let cav = cavity::build(&CavityConfig {
+        n: 12,
+        ..Default::default()
+    })
+    .unwrap();
+    assert!(cav.plan().has(Ghosts) && !cav.plan().has(Periodic) && !cav.plan().has(BodyForce));
+
+    /// A periodic box that counts every call a ghost stage would make.
+    struct Counting {
+        inner: PeriodicBox<2>,
+        calls: AtomicUsize,
+    }
+    impl Boundary<2> for Counting {
+        fn has_ghosts(&self) -> bool {
+            false
+        }
+        fn periodicity(&self) -> Periodicity<2> {
+            self.inner.periodic
+        }
+        fn fill_scalar(&self, _: &[Role], _: &mut [f64]) {
+            self.calls.fetch_add(1, Ordering::Relaxed);
+        }
+        fn fill_vector(&self, _: &[Role], _: &mut [[f64; 2]], _: VectorKind) {
+            self.calls.fetch_add(1, Ordering::Relaxed);
+        }
+        fn place_ghosts(&self, _: &mut Particles<2>) {
+            self.calls.fetch_add(1, Ordering::Relaxed);
+        }
+        fn make_ghosts(&self, _: &mut Particles<2>, _: f64) {
+            self.calls.fetch_add(1, Ordering::Relaxed);
+        }
+        fn confine(&self, p: &mut Particles<2>) -> Result<(), gpm::error::InputError> {
+            self.inner.confine(p)
+        }
+    }
+    let cfg = TaylorGreenConfig {
+        n: 16,
+        ..Default::default()
+    };
+    let base = taylor_green::build(&cfg).unwrap();
+    let counting = Counting {
+        inner: PeriodicBox {
+            periodic: Periodicity::all([0.0, 0.0], [1.0, 1.0]),
+        },
+        calls: AtomicUsize::new(0),
+    };
+    let mut sim = Simulation::new(
+        {
+            let mut p = base.particles.clone();
+            p.truncate(p.n_fluid());
+            p
+        },
+        counting,
+        *base.nl.config(),
+        base.params,
+    )
+    .unwrap();
+    let before = sim.boundary.calls.load(Ordering::Relaxed);
+    for _ in 0..5 {
+        sim.advance().unwrap();
+    }
+    assert_eq!(
+        sim.boundary.calls.load(Ordering::Relaxed),
+        before,
+        "ghost stages ran in a scene without walls"
+    );
+}
