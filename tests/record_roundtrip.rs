@@ -333,3 +333,249 @@ fn missing_capture_is_reported() {
     assert!(!s.messages.contains_key(TOPIC_PROJECTION));
     assert_eq!(s.notes.len(), 1, "{:?}", s.notes);
 }
+
+/// Recording overhead and file size (not part of the test suite):
+/// `GPM_BENCH_N=100 GPM_BENCH_STEPS=300 cargo test --release --test record_roundtrip -- --ignored --nocapture overhead`
+/// Prints, per configuration, the loop's wall time per step, the recorder's own time per step
+/// (encoding, compression, flushing, plus the projection capture at level `full`) and the file
+/// size per 1000 steps.
+#[test]
+#[ignore]
+fn overhead() {
+    use gpm::record::ChunkCompression;
+    use std::time::Instant;
+    let env = |k: &str, d: usize| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let (n, steps, reps) = (
+        env("GPM_BENCH_N", 100),
+        env("GPM_BENCH_STEPS", 300),
+        env("GPM_BENCH_REPS", 2),
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = CavityConfig {
+        n,
+        t_end: 1e9,
+        ..Default::default()
+    };
+    let configs: Vec<(&str, RecordLevel, u64, ChunkCompression)> = vec![
+        ("none", RecordLevel::None, 1, ChunkCompression::Zstd),
+        (
+            "diagnostics zstd flush 1",
+            RecordLevel::Diagnostics,
+            1,
+            ChunkCompression::Zstd,
+        ),
+        (
+            "diagnostics zstd flush 10",
+            RecordLevel::Diagnostics,
+            10,
+            ChunkCompression::Zstd,
+        ),
+        (
+            "diagnostics none flush 1",
+            RecordLevel::Diagnostics,
+            1,
+            ChunkCompression::None,
+        ),
+        (
+            "full k=10 zstd flush 1",
+            RecordLevel::Full,
+            1,
+            ChunkCompression::Zstd,
+        ),
+        (
+            "full k=10 none flush 1",
+            RecordLevel::Full,
+            1,
+            ChunkCompression::None,
+        ),
+    ];
+    println!(
+        "cavity n = {n}, {steps} steps, {} threads",
+        rayon::current_num_threads()
+    );
+    for rep in 0..reps {
+        for (name, level, flush, compression) in &configs {
+            let path = dir.path().join("bench.mcap");
+            let mut sim = cavity::build(&cfg).unwrap();
+            sim.projection.capture = *level == RecordLevel::Full;
+            let options = RecorderOptions {
+                flush_every: *flush,
+                compression: *compression,
+                ..RecorderOptions::new(*level, 10)
+            };
+            let t0 = Instant::now();
+            let mut rec = Recorder::create_with(&path, options, &serde_json::json!({})).unwrap();
+            let mut step_seconds = 0.0;
+            for _ in 0..steps {
+                let r = sim.advance().unwrap();
+                step_seconds += r.neighbors_seconds
+                    + r.advect_seconds
+                    + r.projection.timings.predictor
+                    + r.projection.timings.diagnostics
+                    + r.projection.timings.source
+                    + r.projection.timings.solve
+                    + r.projection.timings.correction;
+                rec.write_step(&r, &sim).unwrap();
+            }
+            let s = rec.finish().unwrap();
+            let wall = t0.elapsed().as_secs_f64();
+            println!(
+                "rep {rep} {name:<28} wall {:8.3} ms/step  stages {:8.3} ms/step  recorder {:7.4} ms/step ({:5.2} % of stages)  {:9.1} kB/1000 steps",
+                1e3 * wall / steps as f64,
+                1e3 * step_seconds / steps as f64,
+                1e3 * s.seconds / steps as f64,
+                100.0 * s.seconds / step_seconds,
+                s.bytes as f64 / steps as f64 * 1000.0 / 1e3
+            );
+        }
+    }
+}
+
+/// The command line on a full recording: summary, CSV, plot, VTK and re-run in one call.
+#[cfg(feature = "cli")]
+#[test]
+fn replay_command_line() {
+    use std::process::Command;
+    let gpm = env!("CARGO_BIN_EXE_gpm");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("full.mcap");
+    record_cavity(&path, RecordLevel::Full, 2, 5, Motion::Eulerian);
+    let (csv, png, vtk) = (
+        dir.path().join("s.csv"),
+        dir.path().join("s.png"),
+        dir.path().join("vtk"),
+    );
+    let out = Command::new(gpm)
+        .args(["replay", "--quiet", "--rerun"])
+        .arg(&path)
+        .arg("--csv")
+        .arg(&csv)
+        .arg("--plot")
+        .arg(&png)
+        .arg("--vtk")
+        .arg(&vtk)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    for needle in [
+        "complete",
+        "/projection_input",
+        "foxglove.PointCloud",
+        "c0",
+        "3 projections re-run, 3 bit-identical",
+    ] {
+        assert!(stdout.contains(needle), "missing {needle:?} in\n{stdout}");
+    }
+    assert_eq!(std::fs::read_to_string(&csv).unwrap().lines().count(), 6);
+    assert!(std::fs::metadata(&png).unwrap().len() > 10_000);
+    assert!(vtk.join("particles.pvd").exists() && vtk.join("particles_000005.vtp").exists());
+    // JSON summary
+    let out = Command::new(gpm)
+        .args(["replay", "--quiet", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["steps"], 5);
+    // errors: one line, the file named, no backtrace, non-zero exit
+    let bad = dir.path().join("bad.mcap");
+    std::fs::write(&bad, b"not an mcap file").unwrap();
+    let out = Command::new(gpm)
+        .args(["replay", "--quiet"])
+        .arg(&bad)
+        .env("RUST_BACKTRACE", "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.starts_with("error: ") && stderr.contains("bad.mcap: not an MCAP file"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("backtrace"), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+}
+
+/// `gpm run`: flags over a config file, the printed summary, and config errors.
+#[cfg(feature = "cli")]
+#[test]
+fn run_command_line() {
+    use std::process::Command;
+    let gpm = env!("CARGO_BIN_EXE_gpm");
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("tg.json");
+    std::fs::write(&cfg, r#"{"n": 16, "t_end": 0.05, "re": 50.0}"#).unwrap();
+    let out = Command::new(gpm)
+        .args([
+            "run",
+            "taylor-green",
+            "--quiet",
+            "--n",
+            "12",
+            "--record",
+            "full",
+        ])
+        .args(["--record-every", "1", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["scene"], "taylor_green");
+    assert_eq!(s["result"]["n"], 12, "the flag overrides the file");
+    assert_eq!(s["result"]["re"], 50.0, "the file overrides the default");
+    let steps = s["result"]["steps"].as_u64().unwrap();
+    assert_eq!(s["record"]["messages"]["/particles"].as_u64(), Some(steps));
+    let replay = Replay::open(dir.path().join("run.mcap")).unwrap();
+    let config = replay.config.unwrap();
+    assert_eq!(config.config["scene"], "taylor_green");
+    assert_eq!(config.config["config"]["n"], 12);
+    // the recorded configuration reproduces the run
+    let again = dir.path().join("again");
+    std::fs::write(dir.path().join("cfg.json"), config.config.to_string()).unwrap();
+    let out = Command::new(gpm)
+        .args([
+            "run",
+            "taylor-green",
+            "--quiet",
+            "--record",
+            "none",
+            "--config",
+        ])
+        .arg(dir.path().join("cfg.json"))
+        .arg("--out")
+        .arg(&again)
+        .output()
+        .unwrap();
+    let s2: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s2["result"]["steps"], s["result"]["steps"]);
+    assert_eq!(s2["result"]["errors"], s["result"]["errors"]);
+    // unknown keys are rejected with the file named
+    std::fs::write(&cfg, r#"{"n": 16, "bogus": 1}"#).unwrap();
+    let out = Command::new(gpm)
+        .args(["run", "cavity", "--quiet", "--config"])
+        .arg(&cfg)
+        .arg("--out")
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("tg.json") && stderr.contains("unknown field"),
+        "{stderr}"
+    );
+}

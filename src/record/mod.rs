@@ -93,8 +93,11 @@ impl std::fmt::Display for RecordLevel {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ChunkCompression {
-    /// zstd at its default level, single-threaded (the measured best: see `README` of the
-    /// record module's commit / the report).
+    /// zstd at its default level (3), single-threaded. Measured on the cavity at n = 100
+    /// (300 steps, 2 threads): diagnostics 815 kB per 1000 steps at 0.15–0.19 ms per step
+    /// (lz4: 1050 kB, 0.11–0.14 ms; none: 1225 kB, 0.08–0.10 ms); full with k = 10 88 MB per
+    /// 1000 steps at 1.1 ms per step (lz4: 130 MB, 0.8 ms; none: 191 MB, 0.5–0.65 ms), against
+    /// 24 ms per step. The smallest files for under 1 % (diagnostics) or 2.5 % (full) more.
     #[default]
     Zstd,
     /// Uncompressed chunks.
@@ -229,7 +232,10 @@ pub struct RecorderOptions {
     /// `k`: at level `full`, a snapshot and a projection input at steps `1, k+1, 2k+1, …`.
     pub particles_every: u64,
     /// Close a chunk and hand it to the OS every this many steps (default 1). A killed process
-    /// loses at most the last `flush_every − 1` steps (plus the one being written).
+    /// loses at most the last `flush_every − 1` steps (plus the one being written). Measured at
+    /// n = 100: flushing every step costs about 0.1 ms per step more than every 10 steps
+    /// (0.15 vs 0.06 ms, under 1 % of a 24 ms step) and triples a diagnostics file (815 vs
+    /// 264 kB per 1000 steps: each chunk carries its own header, index and zstd frame).
     pub flush_every: u64,
     /// Chunk compression (default zstd).
     pub compression: ChunkCompression,
