@@ -69,6 +69,9 @@ struct Args {
     /// Averaging window for the profiles (time units).
     #[arg(long)]
     average: Option<f64>,
+    /// Continuation of the Poisson source into wall ghosts: mirror or no-slip.
+    #[arg(long, default_value = "mirror")]
+    source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Output directory.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -87,6 +90,7 @@ fn config(a: &Args) -> CavityConfig {
         motion: a.motion,
         integrator: a.integrator,
         viscous_theta: a.theta,
+        source_ghosts: a.source_ghosts,
         ..Default::default()
     };
     cfg.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });

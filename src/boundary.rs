@@ -41,6 +41,9 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Moves ghosts to the images of their sources (after the sources moved).
     fn place_ghosts(&self, p: &mut Particles<D>);
     /// Drops every ghost and creates images of the fluid particles within `reach` of a wall.
+    /// `reach` must be at least the search radius of the neighbour list (`h + skin`): the
+    /// symmetry of the Poisson matrix and the adjointness of the operators rely on every image
+    /// within `h` of a fluid particle existing.
     fn make_ghosts(&self, p: &mut Particles<D>, reach: f64);
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.

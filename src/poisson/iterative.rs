@@ -63,10 +63,19 @@ pub fn pcg(
     let mut iters = 0;
     while rnorm > tol {
         if iters >= max_iters {
+            // report the true residual ‖b − K x‖, as documented, not the recursive one
+            let mut kx = vec![0.0; n];
+            a.spmv(x, &mut kx);
+            let true_r = kx
+                .par_iter()
+                .zip(b.par_iter())
+                .map(|(k, b)| (b - k) * (b - k))
+                .sum::<f64>()
+                .sqrt();
             return Err(SolveError::NoConvergence {
                 iters,
-                abs_residual: rnorm,
-                rel_residual: rnorm / bnorm,
+                abs_residual: true_r,
+                rel_residual: true_r / bnorm,
             });
         }
         // q = K p and p·q in one pass

@@ -161,8 +161,10 @@ impl PoissonSolver {
     ///   at Dirichlet particles; with `warm_start` its fluid values are CG's initial guess;
     /// * `components` must come from [`crate::diagnostics::connectivity`] for the same list.
     ///
-    /// Connectivity is the caller's check ([`Components::check`]); an isolated particle here has
-    /// a zero row and fails the solve.
+    /// Connectivity is the caller's check ([`Components::check`], which the projection runs
+    /// before every solve). The solver itself treats every floating component alike: an isolated
+    /// particle (no neighbour) is a floating component of one particle, gets `φ = 0`, and its
+    /// source is dropped — visible only as a `compatibility_defect` of 1.
     #[allow(clippy::too_many_arguments)]
     pub fn solve<const D: usize>(
         &mut self,

@@ -554,8 +554,8 @@ impl Recorder {
         out.seconds += t0.elapsed().as_secs_f64();
         if inner.missing_capture {
             out.notes.push(
-                "projection inputs were not recorded: set sim.projection.capture = true before \
-                 the run (the scene runs do not expose the simulation before its first step yet)"
+                "projection inputs were not recorded: the simulation's projection capture was \
+                 off (set sim.projection.capture = true before the run)"
                     .into(),
             );
         }

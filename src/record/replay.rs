@@ -16,7 +16,7 @@ use super::RecordError;
 use mcap::records::{op, Record};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::fmt;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -56,8 +56,8 @@ impl fmt::Display for Damage {
         match self.last_step {
             Some(s) => write!(
                 f,
-                "the file was cut after step {s}: the last complete chunk ends at byte offset {} \
-                 of {} ({})",
+                "the file was cut after step {s}: complete records up to byte offset {} of {} \
+                 ({})",
                 self.valid_bytes, self.file_len, self.reason
             ),
             None => write!(
@@ -576,8 +576,8 @@ pub struct ReplaySummary {
     pub div_after: Stat,
     /// Kinetic energy.
     pub kinetic_energy: Stat,
-    /// Per stage (`neighbors`, `predictor`, …, `total`, `record`).
-    pub stages: BTreeMap<String, StageTime>,
+    /// Per stage, in step order (`neighbors`, `predictor`, …, `total`, `record`).
+    pub stages: Vec<(String, StageTime)>,
 }
 
 impl fmt::Display for ReplaySummary {
@@ -751,14 +751,14 @@ impl Replay {
         let total: f64 = s.iter().map(|d| finite(d.timings.total)).sum();
         for (name, get) in stages {
             let t: f64 = s.iter().map(|d| finite(get(d))).sum();
-            out.stages.insert(
+            out.stages.push((
                 name.to_string(),
                 StageTime {
                     total: t,
                     mean: t / s.len() as f64,
                     share: if total > 0.0 { t / total } else { 0.0 },
                 },
-            );
+            ));
         }
         out
     }

@@ -85,6 +85,41 @@ pub struct CavityConfig {
     pub steady: SteadyCriterion,
     /// Lid speed.
     pub lid: f64,
+    /// Continuation of the Poisson source into the wall ghosts.
+    pub source_ghosts: SourceGhosts,
+}
+
+/// Serialisable choice of [`crate::boundary::VectorKind`] for the Poisson source.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceGhosts {
+    /// Normal component flipped, tangential kept: exact adjointness, Theorem 4.5 applies.
+    #[default]
+    Mirror,
+    /// The no-slip velocity images (wall velocity enters the source).
+    NoSlip,
+}
+
+impl std::str::FromStr for SourceGhosts {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "mirror" => Ok(SourceGhosts::Mirror),
+            "no_slip" | "noslip" => Ok(SourceGhosts::NoSlip),
+            _ => Err(format!(
+                "unknown source ghost rule '{s}': expected mirror or no-slip"
+            )),
+        }
+    }
+}
+
+impl From<SourceGhosts> for crate::boundary::VectorKind {
+    fn from(s: SourceGhosts) -> Self {
+        match s {
+            SourceGhosts::Mirror => crate::boundary::VectorKind::Mirror,
+            SourceGhosts::NoSlip => crate::boundary::VectorKind::Velocity,
+        }
+    }
 }
 
 impl Default for CavityConfig {
@@ -106,6 +141,7 @@ impl Default for CavityConfig {
             solve: SolveParams::default(),
             steady: SteadyCriterion::default(),
             lid: 1.0,
+            source_ghosts: SourceGhosts::Mirror,
         }
     }
 }
@@ -222,6 +258,7 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     let mut projection = ProjectionParams::new(cfg.lid.abs() / cfg.re);
     projection.scheme = cfg.scheme;
     projection.viscous_theta = cfg.viscous_theta;
+    projection.source_ghosts = cfg.source_ghosts.into();
     projection.solve = cfg.solve;
     projection.allowed_floating = 1;
     let mut limits = cfg.limits;
