@@ -225,6 +225,11 @@ fn every_variant_validates_and_round_trips() {
             m.neighbors.weight = *w;
             m.params.scheme = schemes[(k + l) % 3];
             m.params.solve.solver = solvers[l % 3];
+            m.params.source_ghosts = if (k + l) % 2 == 0 {
+                gpm::record::schema::GhostContinuation::Mirror
+            } else {
+                gpm::record::schema::GhostContinuation::Velocity
+            };
             let j = serde_json::to_value(&m).unwrap();
             assert_valid(&v, &j, &format!("projection input {k} {l}"));
             assert_eq!(serde_json::from_value::<ProjectionInput>(j).unwrap(), m);

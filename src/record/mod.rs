@@ -41,6 +41,7 @@ pub mod schema;
 
 use crate::boundary::Boundary;
 use crate::flow::{FlowReport, Simulation};
+use crate::projection::ProjectionCapture;
 use mcap::records::MessageHeader;
 use schema::{
     encode_roles, Array, PointCloud, ProjectionInput, RunConfig, StepDiagnostics, ToBoundarySpec,
@@ -479,27 +480,39 @@ impl Recorder {
                 .filter(|c| c.dt == report.projection.dt && c.phi == sim.projection.phi);
             match fresh {
                 Some(c) => {
-                    let (role_kind, ghost_source, ghost_walls) = encode_roles(&c.role);
+                    // exhaustive on purpose: whatever the projection captures is recorded
+                    let ProjectionCapture {
+                        x,
+                        vol,
+                        role,
+                        u_star,
+                        p_in,
+                        dt,
+                        u_out,
+                        p_out,
+                        phi,
+                    } = c;
+                    let (role_kind, ghost_source, ghost_walls) = encode_roles(role);
                     let msg = ProjectionInput {
                         step,
                         time: report.time,
-                        dt: c.dt,
+                        dt: *dt,
                         dimension: D,
-                        particles: c.x.len(),
+                        particles: x.len(),
                         threads: rayon::current_num_threads(),
                         neighbors: sim.nl.config().into(),
                         boundary: sim.boundary.to_spec(),
                         params: (&sim.params.projection).into(),
-                        x: Array::from_vectors(&c.x),
-                        vol: Array::from_f64(&c.vol),
+                        x: Array::from_vectors(x),
+                        vol: Array::from_f64(vol),
                         role_kind,
                         ghost_source,
                         ghost_walls,
-                        u_star: Array::from_vectors(&c.u_star),
-                        p_in: Array::from_f64(&c.p_in),
-                        u_out: Array::from_vectors(&c.u_out),
-                        p_out: Array::from_f64(&c.p_out),
-                        phi: Array::from_f64(&c.phi),
+                        u_star: Array::from_vectors(u_star),
+                        p_in: Array::from_f64(p_in),
+                        u_out: Array::from_vectors(u_out),
+                        p_out: Array::from_f64(p_out),
+                        phi: Array::from_f64(phi),
                     };
                     inner.write(
                         header(inner.ch_projection),

@@ -18,7 +18,7 @@
 //! (`tests/record_schema.rs`) fail as soon as a type and its schema drift apart.
 
 use super::RecordError;
-use crate::boundary::{Boundary, NoBoundary, PeriodicBox, Wall, Walls};
+use crate::boundary::{Boundary, NoBoundary, PeriodicBox, VectorKind, Wall, Walls};
 use crate::flow::{DtLimit, FlowReport};
 use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
@@ -1018,9 +1018,10 @@ pub struct PeriodicSpec {
 
 impl<const D: usize> From<&Periodicity<D>> for PeriodicSpec {
     fn from(p: &Periodicity<D>) -> Self {
+        let Periodicity { lo, len } = *p;
         PeriodicSpec {
-            lo: p.lo.to_vec(),
-            len: p.len.to_vec(),
+            lo: lo.to_vec(),
+            len: len.to_vec(),
         }
     }
 }
@@ -1061,11 +1062,18 @@ pub struct NeighborSpec {
 
 impl<const D: usize> From<&NeighborConfig<D>> for NeighborSpec {
     fn from(c: &NeighborConfig<D>) -> Self {
+        // exhaustive on purpose (see ProjectionSpec)
+        let NeighborConfig {
+            h,
+            skin,
+            weight,
+            periodic,
+        } = *c;
         NeighborSpec {
-            h: c.h,
-            skin: c.skin,
-            weight: c.weight,
-            periodic: (&c.periodic).into(),
+            h,
+            skin,
+            weight,
+            periodic: (&periodic).into(),
         }
     }
 }
@@ -1134,18 +1142,26 @@ pub trait ToBoundarySpec<const D: usize> {
 
 impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
     fn to_spec(&self) -> BoundarySpec {
+        let Walls { walls, periodic } = self;
         BoundarySpec::Walls {
-            walls: self
-                .walls
+            walls: walls
                 .iter()
-                .map(|w| WallSpec {
-                    axis: w.axis,
-                    position: w.position,
-                    inward: w.inward,
-                    velocity: w.velocity.to_vec(),
+                .map(|w| {
+                    let Wall {
+                        axis,
+                        position,
+                        inward,
+                        velocity,
+                    } = *w;
+                    WallSpec {
+                        axis,
+                        position,
+                        inward,
+                        velocity: velocity.to_vec(),
+                    }
                 })
                 .collect(),
-            periodic: (&self.periodic).into(),
+            periodic: periodic.into(),
         }
     }
 }
@@ -1272,20 +1288,63 @@ pub struct ProjectionSpec {
     pub viscous_theta: f64,
     /// Linear solve.
     pub solve: SolveParams,
+    /// How the source is continued into wall ghosts.
+    pub source_ghosts: GhostContinuation,
     /// Floating components allowed.
     pub allowed_floating: usize,
 }
 
+/// [`VectorKind`] in serialisable form.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GhostContinuation {
+    /// [`VectorKind::Velocity`]: no-slip images.
+    Velocity,
+    /// [`VectorKind::Mirror`]: normal components flipped.
+    Mirror,
+}
+
+impl From<VectorKind> for GhostContinuation {
+    fn from(k: VectorKind) -> Self {
+        match k {
+            VectorKind::Velocity => GhostContinuation::Velocity,
+            VectorKind::Mirror => GhostContinuation::Mirror,
+        }
+    }
+}
+
+impl From<GhostContinuation> for VectorKind {
+    fn from(k: GhostContinuation) -> Self {
+        match k {
+            GhostContinuation::Velocity => VectorKind::Velocity,
+            GhostContinuation::Mirror => VectorKind::Mirror,
+        }
+    }
+}
+
 impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
     fn from(p: &ProjectionParams<D>) -> Self {
+        // exhaustive on purpose: a new parameter must be recorded, or a re-run silently
+        // differs from the run
+        let ProjectionParams {
+            rho,
+            nu,
+            gravity,
+            scheme,
+            viscous_theta,
+            solve,
+            source_ghosts,
+            allowed_floating,
+        } = *p;
         ProjectionSpec {
-            rho: p.rho,
-            nu: p.nu,
-            gravity: p.gravity.to_vec(),
-            scheme: p.scheme,
-            viscous_theta: p.viscous_theta,
-            solve: p.solve,
-            allowed_floating: p.allowed_floating,
+            rho,
+            nu,
+            gravity: gravity.to_vec(),
+            scheme,
+            viscous_theta,
+            solve,
+            source_ghosts: source_ghosts.into(),
+            allowed_floating,
         }
     }
 }
@@ -1293,14 +1352,16 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
 impl ProjectionSpec {
     /// Back to [`ProjectionParams`] (checks the dimension).
     pub fn to_params<const D: usize>(&self) -> Result<ProjectionParams<D>, RecordError> {
-        let mut p = ProjectionParams::new(self.nu);
-        p.rho = self.rho;
-        p.gravity = to_array("gravity", &self.gravity)?;
-        p.scheme = self.scheme;
-        p.viscous_theta = self.viscous_theta;
-        p.solve = self.solve;
-        p.allowed_floating = self.allowed_floating;
-        Ok(p)
+        Ok(ProjectionParams {
+            rho: self.rho,
+            nu: self.nu,
+            gravity: to_array("gravity", &self.gravity)?,
+            scheme: self.scheme,
+            viscous_theta: self.viscous_theta,
+            solve: self.solve,
+            source_ghosts: self.source_ghosts.into(),
+            allowed_floating: self.allowed_floating,
+        })
     }
 
     fn schema() -> Value {
@@ -1316,6 +1377,13 @@ impl ProjectionSpec {
                     number("implicit weight of the viscous term"),
                 ),
                 ("solve", solve_params_schema()),
+                (
+                    "source_ghosts",
+                    string_enum(
+                        "continuation of the source into wall ghosts: mirror (normal component flipped) or velocity (no-slip images)",
+                        &["velocity", "mirror"],
+                    ),
+                ),
                 ("allowed_floating", count("floating components allowed")),
             ],
         )
