@@ -126,32 +126,34 @@ fn solver_kind_schema() -> Value {
     string_enum("linear solver", &["cholesky", "cg", "auto"])
 }
 
+/// The schema of [`SolveParams`], derived from the JSON of its default value so that it follows
+/// the solver's options as they are added (every key required, no other allowed, each typed by
+/// its default: boolean, non-negative integer, number, or the solver name).
 fn solve_params_schema() -> Value {
-    object(
-        "gpm::poisson::SolveParams",
-        &[
-            ("solver", solver_kind_schema()),
-            ("rel_tol", number("CG relative tolerance")),
-            ("abs_tol", number("CG absolute tolerance")),
-            ("max_iters", count("CG iteration limit")),
-            (
-                "warm_start",
-                boolean("CG starts from the previous increment"),
-            ),
-            (
-                "reuse_symbolic",
-                boolean("Cholesky reuses the symbolic analysis"),
-            ),
-            (
-                "reuse_numeric",
-                boolean("Cholesky reuses the numeric factor"),
-            ),
-            (
-                "direct_limit",
-                count("Auto: largest 2D system solved directly"),
-            ),
-        ],
-    )
+    let describe = |k: &str| match k {
+        "rel_tol" => "CG relative tolerance",
+        "abs_tol" => "CG absolute tolerance",
+        "max_iters" => "CG iteration limit",
+        "warm_start" => "CG starts from the previous increment",
+        "reuse_symbolic" => "Cholesky reuses the symbolic analysis",
+        "reuse_numeric" => "Cholesky reuses the numeric factor",
+        "direct_limit" => "Auto: largest 2D system solved directly",
+        _ => "see gpm::poisson::SolveParams",
+    };
+    let default = serde_json::to_value(SolveParams::default()).expect("SolveParams serialises");
+    let mut props: Vec<(&str, Value)> = Vec::new();
+    for (k, v) in default.as_object().expect("SolveParams is a struct") {
+        let schema = match v {
+            _ if k == "solver" => solver_kind_schema(),
+            Value::Bool(_) => boolean(describe(k)),
+            Value::Number(n) if n.is_u64() => count(describe(k)),
+            Value::Number(_) => number(describe(k)),
+            Value::String(_) => json!({"type": "string", "description": describe(k)}),
+            _ => json!({"description": describe(k)}),
+        };
+        props.push((k.as_str(), schema));
+    }
+    object("gpm::poisson::SolveParams", &props)
 }
 
 // ---------------------------------------------------------------------------------------------
