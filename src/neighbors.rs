@@ -176,6 +176,7 @@ pub struct NeighborList<const D: usize> {
     x_ref: Vec<[f64; D]>,
     epoch: u64,
     rebuilds: u64,
+    generation: u64,
 }
 
 impl<const D: usize> NeighborList<D> {
@@ -196,6 +197,7 @@ impl<const D: usize> NeighborList<D> {
             x_ref: Vec::new(),
             epoch: 0,
             rebuilds: 0,
+            generation: 0,
         })
     }
 
@@ -267,6 +269,12 @@ impl<const D: usize> NeighborList<D> {
     /// Changes exactly when the candidate list (the sparsity pattern) is rebuilt.
     pub fn epoch(&self) -> u64 {
         self.epoch
+    }
+    /// Changes whenever the pair data (`dx`, `r2`, `w`, `wr2`) are re-measured, i.e. whenever
+    /// positions may have changed: consumers that derive values from the pair data (matrix
+    /// values, connectivity) can skip the work while it is unchanged.
+    pub fn generation(&self) -> u64 {
+        self.generation
     }
     /// How many times the candidates were searched.
     pub fn rebuilds(&self) -> u64 {
@@ -384,6 +392,7 @@ impl<const D: usize> NeighborList<D> {
 
     /// Re-measures the candidate pairs at positions `x` and keeps those with `r < h`.
     fn measure(&mut self, x: &[[f64; D]]) -> Result<(), InputError> {
+        self.generation += 1;
         let n = x.len();
         let h2 = self.config.h * self.config.h;
         let per = self.config.periodic;

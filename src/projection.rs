@@ -95,6 +95,9 @@ pub struct ProjectionParams<const D: usize> {
     /// ([`VectorKind::Velocity`]) feeds the wall velocity into the source (the adjointness then
     /// holds only up to wall terms, and an impulsively started lid gives ratios above 1).
     pub source_ghosts: VectorKind,
+    /// Reuse connectivity and `c0` while the pair data, roles and volumes are bit-identical
+    /// (they are functions of those alone; default true).
+    pub reuse_diagnostics: bool,
     /// Floating (pure Neumann) components the problem is expected to have: 1 for a box closed
     /// by walls, 0 when a Dirichlet band touches every part of the fluid. More are reported as a
     /// connectivity failure.
@@ -112,6 +115,7 @@ impl<const D: usize> ProjectionParams<D> {
             scheme: Scheme::Rotational,
             viscous_theta: 0.5,
             source_ghosts: VectorKind::Mirror,
+            reuse_diagnostics: true,
             solve: SolveParams::default(),
             allowed_floating: 1,
         }
@@ -197,6 +201,31 @@ pub struct StepReport {
     pub timings: StageTimings,
 }
 
+/// What connectivity and c0 were computed from.
+#[derive(Clone, Debug, PartialEq)]
+struct DiagnosticsKey {
+    epoch: u64,
+    generation: u64,
+    roles: u64,
+    vol: Vec<f64>,
+}
+
+fn role_fingerprint(role: &[crate::particles::Role]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    role.len().hash(&mut h);
+    for r in role {
+        match *r {
+            crate::particles::Role::Fluid => 0u64.hash(&mut h),
+            crate::particles::Role::Dirichlet => 1u64.hash(&mut h),
+            crate::particles::Role::Ghost { source, walls } => {
+                (2u64, source, walls).hash(&mut h);
+            }
+        }
+    }
+    h.finish()
+}
+
 fn check_dt(dt: f64) -> Result<(), InputError> {
     if !(dt > 0.0 && dt.is_finite()) {
         return Err(InputError::Parameter {
@@ -264,6 +293,7 @@ pub struct ProjectionStep<const D: usize> {
     pub viscous: HelmholtzSolver,
     /// The last implicit viscous solve.
     pub viscous_info: SolveInfo,
+    diagnostics_cache: Option<(DiagnosticsKey, crate::diagnostics::Components, f64)>,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -420,12 +450,33 @@ impl<const D: usize> ProjectionStep<D> {
         let (rho, nu) = (params.rho, params.nu);
         let ghosts = boundary.has_ghosts();
 
-        // 1. diagnostics that must pass before any solve
+        // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
+        //    roles or volumes changed: they are functions of those alone)
         let t = Instant::now();
-        let comps = connectivity(nl, &particles.role);
+        let key = DiagnosticsKey {
+            epoch: nl.epoch(),
+            generation: nl.generation(),
+            roles: role_fingerprint(&particles.role),
+            vol: particles.vol.clone(),
+        };
+        let cached = match &self.diagnostics_cache {
+            Some((k, comps, c0)) if params.reuse_diagnostics && *k == key => {
+                Some((comps.clone(), *c0))
+            }
+            _ => None,
+        };
+        let (comps, c0) = match cached {
+            Some(v) => v,
+            None => {
+                let comps = connectivity(nl, &particles.role);
+                let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+                (comps, c0)
+            }
+        };
         report.connectivity = comps.summary();
         comps.check(params.allowed_floating)?;
-        report.c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+        report.c0 = c0;
+        self.diagnostics_cache = Some((key, comps.clone(), c0));
         report.timings.diagnostics = t.elapsed().as_secs_f64();
         let role = &particles.role;
         let vol = &particles.vol;

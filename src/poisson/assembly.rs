@@ -22,6 +22,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 #[derive(Clone, Debug, Default)]
 pub struct Assembly {
     key: Option<(u64, u64)>,
+    values_key: Option<ValuesKey>,
     pattern_id: u64,
     /// Unknown index of each particle (`u32::MAX` when the particle is not an unknown).
     pub unknown: Vec<u32>,
@@ -35,6 +36,21 @@ pub struct Assembly {
     pub diag: Vec<usize>,
     /// Values.
     pub values: Vec<f64>,
+    /// Skip refilling the values while their inputs are unchanged (default false here; the
+    /// solvers switch it on through [`crate::poisson::SolveParams::reuse_values`]).
+    pub reuse_values: bool,
+    values_reused: bool,
+}
+
+/// What the matrix values were computed from.
+#[derive(Clone, Debug, PartialEq)]
+struct ValuesKey {
+    pattern_id: u64,
+    generation: u64,
+    vol: Vec<f64>,
+    mass: u64,
+    c: u64,
+    sigma: Vec<f64>,
 }
 
 fn role_hash(role: &[Role]) -> u64 {
@@ -146,6 +162,12 @@ impl Assembly {
         self.fill(nl, vol, role, 1.0, c, Some(sigma))
     }
 
+    /// True when the last fill used exactly these inputs (same pattern, same pair data
+    /// generation, same volumes and coefficients), so the values are already current.
+    pub fn values_current(&self) -> bool {
+        self.values_reused
+    }
+
     fn fill<const D: usize>(
         &mut self,
         nl: &NeighborList<D>,
@@ -155,6 +177,30 @@ impl Assembly {
         c: f64,
         sigma: Option<&[f64]>,
     ) -> Result<(), SolveError> {
+        let key = ValuesKey {
+            pattern_id: self.pattern_id,
+            generation: nl.generation(),
+            vol: Vec::new(),
+            mass: mass.to_bits(),
+            c: c.to_bits(),
+            sigma: Vec::new(),
+        };
+        if self.reuse_values {
+            if let Some(k) = &self.values_key {
+                if k.pattern_id == key.pattern_id
+                    && k.generation == key.generation
+                    && k.mass == key.mass
+                    && k.c == key.c
+                    && k.vol == vol
+                    && sigma.map(|s| k.sigma == s).unwrap_or(k.sigma.is_empty())
+                {
+                    self.values_reused = true;
+                    return Ok(());
+                }
+            }
+        }
+        self.values_reused = false;
+        self.values_key = None;
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
@@ -204,6 +250,13 @@ impl Assembly {
                  changed without a neighbour-list update)"
                     .into(),
             ));
+        }
+        if self.reuse_values {
+            self.values_key = Some(ValuesKey {
+                vol: vol.to_vec(),
+                sigma: sigma.map(|s| s.to_vec()).unwrap_or_default(),
+                ..key
+            });
         }
         Ok(())
     }

@@ -77,6 +77,10 @@ impl Direct {
         reuse_symbolic: bool,
         reuse_numeric: bool,
     ) -> Result<DirectReuse, SolveError> {
+        assert!(
+            b.len() == a.n() && x.len() == a.n(),
+            "b and x must have one entry per unknown"
+        );
         let mut info = DirectReuse::default();
         let key = (a.pattern_id(), pinned.to_vec());
         let t0 = std::time::Instant::now();

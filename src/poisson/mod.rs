@@ -82,6 +82,9 @@ pub struct SolveParams {
     pub reuse_symbolic: bool,
     /// Cholesky: reuse the numeric factor while the matrix values are unchanged (default true).
     pub reuse_numeric: bool,
+    /// Skip refilling the matrix values while the pair data (neighbour-list generation),
+    /// volumes and coefficients are unchanged (default true).
+    pub reuse_values: bool,
     /// `Auto`: largest 2D system solved directly (default 200 000 unknowns).
     pub direct_limit: usize,
 }
@@ -96,6 +99,7 @@ impl Default for SolveParams {
             warm_start: true,
             reuse_symbolic: true,
             reuse_numeric: true,
+            reuse_values: true,
             direct_limit: 200_000,
         }
     }
@@ -178,6 +182,7 @@ impl PoissonSolver {
     ) -> Result<SolveInfo, SolveError> {
         let t0 = Instant::now();
         let pattern_rebuilt = self.assembly.update_pattern(nl, role);
+        self.assembly.reuse_values = params.reuse_values;
         self.assembly.fill_values(nl, vol, role)?;
         let a = &self.assembly;
         let n = a.n();

@@ -137,6 +137,9 @@ fn solve_params_schema() -> Value {
         "warm_start" => "CG starts from the previous increment",
         "reuse_symbolic" => "Cholesky reuses the symbolic analysis",
         "reuse_numeric" => "Cholesky reuses the numeric factor",
+        "reuse_values" => {
+            "matrix values kept while pair data, volumes and coefficients are unchanged"
+        }
         "direct_limit" => "Auto: largest 2D system solved directly",
         _ => "see gpm::poisson::SolveParams",
     };
@@ -1294,6 +1297,8 @@ pub struct ProjectionSpec {
     pub source_ghosts: GhostContinuation,
     /// Floating components allowed.
     pub allowed_floating: usize,
+    /// Connectivity and c0 reused while their inputs are unchanged.
+    pub reuse_diagnostics: bool,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1337,6 +1342,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             solve,
             source_ghosts,
             allowed_floating,
+            reuse_diagnostics,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1347,6 +1353,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             solve,
             source_ghosts: source_ghosts.into(),
             allowed_floating,
+            reuse_diagnostics,
         }
     }
 }
@@ -1363,6 +1370,7 @@ impl ProjectionSpec {
             solve: self.solve,
             source_ghosts: self.source_ghosts.into(),
             allowed_floating: self.allowed_floating,
+            reuse_diagnostics: self.reuse_diagnostics,
         })
     }
 
@@ -1387,6 +1395,10 @@ impl ProjectionSpec {
                     ),
                 ),
                 ("allowed_floating", count("floating components allowed")),
+                (
+                    "reuse_diagnostics",
+                    boolean("connectivity and c0 reused while their inputs are unchanged"),
+                ),
             ],
         )
     }
