@@ -41,8 +41,8 @@ pub struct TimeStepLimits {
     pub force: f64,
     /// Reference speed: the CFL limit never assumes a speed below it (default 1).
     pub u_ref: f64,
-    /// Upper bound on `Δt` (default ∞).
-    pub dt_max: f64,
+    /// Upper bound on `Δt` (default none).
+    pub dt_max: Option<f64>,
     /// A fixed `Δt`, overriding the limits (it is still checked against them and named when it
     /// exceeds one).
     pub dt_fixed: Option<f64>,
@@ -55,7 +55,7 @@ impl Default for TimeStepLimits {
             visc: 0.5,
             force: 0.25,
             u_ref: 1.0,
-            dt_max: f64::INFINITY,
+            dt_max: None,
             dt_fixed: None,
         }
     }
@@ -430,7 +430,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 .map(|(u, _)| norm2(u))
                 .fold(0.0f64, f64::max)
                 .sqrt();
-        let mut dt = l.dt_max;
+        let mut dt = l.dt_max.unwrap_or(f64::INFINITY);
         let mut which = DtLimit::Max;
         let cfl = l.cfl * h / umax.max(l.u_ref);
         if cfl < dt {

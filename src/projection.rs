@@ -261,6 +261,8 @@ pub struct ProjectionCapture<const D: usize> {
     pub u_star: Vec<[f64; D]>,
     /// Pressure `pⁿ` before the update.
     pub p_in: Vec<f64>,
+    /// The increment held before the solve (CG's warm start).
+    pub phi_in: Vec<f64>,
     /// Time step.
     pub dt: f64,
     /// Velocity `uⁿ⁺¹` after the correction.
@@ -490,6 +492,11 @@ impl<const D: usize> ProjectionStep<D> {
             role: role.clone(),
             u_star: self.u_star.clone(),
             p_in: particles.p.clone(),
+            phi_in: {
+                let mut v = self.phi.clone();
+                v.resize(n, 0.0);
+                v
+            },
             dt,
             ..Default::default()
         });

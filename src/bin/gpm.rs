@@ -170,12 +170,6 @@ fn load_config<T: serde::de::DeserializeOwned>(path: &Path, scene: &str) -> Resu
         }
         v = inner;
     }
-    // an unlimited dt_max (∞) is written as null by serde_json: read it back as the default
-    if let Some(l) = v.get_mut("limits").and_then(|l| l.as_object_mut()) {
-        if l.get("dt_max").is_some_and(|d| d.is_null()) {
-            l.remove("dt_max");
-        }
-    }
     serde_json::from_value(v)
         .with_context(|| format!("invalid {scene} configuration in {}", path.display()))
 }
@@ -231,12 +225,17 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             let mut rec = Recorder::create_with(&path, options, &config)?;
             let pb = progress_bar(1000, a.quiet, bar_template);
             let t_end = cfg.t_end;
-            let r = cavity::run(&cfg, |rep, sim| {
-                rec.write_step(rep, sim)?;
-                observe(&pb, rep, t_end, &stop)
-            });
+            let capture = a.record == RecordLevel::Full;
+            let r = cavity::run_with(
+                &cfg,
+                |sim| sim.projection.capture = capture,
+                |rep, sim| {
+                    rec.write_step(rep, sim)?;
+                    observe(&pb, rep, t_end, &stop)
+                },
+            );
             pb.finish_and_clear();
-            let r = r.map(|res| serde_json::to_value(res).unwrap_or_default());
+            let r = r.map(|(res, _)| serde_json::to_value(res).unwrap_or_default());
             ("cavity", r, rec.finish())
         }
         SceneName::TaylorGreen => {
@@ -255,10 +254,15 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             let mut rec = Recorder::create_with(&path, options, &config)?;
             let pb = progress_bar(1000, a.quiet, bar_template);
             let t_end = cfg.t_end;
-            let r = taylor_green::run(&cfg, |rep, sim| {
-                rec.write_step(rep, sim)?;
-                observe(&pb, rep, t_end, &stop)
-            });
+            let capture = a.record == RecordLevel::Full;
+            let r = taylor_green::run_with(
+                &cfg,
+                |sim| sim.projection.capture = capture,
+                |rep, sim| {
+                    rec.write_step(rep, sim)?;
+                    observe(&pb, rep, t_end, &stop)
+                },
+            );
             pb.finish_and_clear();
             let r = r.map(|res| serde_json::to_value(res).unwrap_or_default());
             ("taylor_green", r, rec.finish())
@@ -408,9 +412,8 @@ fn replay(a: ReplayArgs) -> Result<ExitCode> {
                 println!(
                     "  not identical: with Cholesky the result is reproducible only when the \
                      neighbour candidates (the matrix pattern) match the run's, which a moving \
-                     (Lagrangian) run does not guarantee; with CG the run started from the \
-                     previous increment and its reductions depend on the threads (see \
-                     gpm::record::rerun)."
+                     (Lagrangian) run does not guarantee; with CG the reductions depend on the \
+                     thread count and rayon's work split (see gpm::record::rerun)."
                 );
             }
         }

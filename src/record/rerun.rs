@@ -109,6 +109,7 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     let role = decode_roles(&m.role_kind, &m.ghost_source, &m.ghost_walls)?;
     let u_star = m.u_star.to_vectors::<D>("u_star")?;
     let p_in = m.p_in.to_f64("p_in")?;
+    let phi_in = m.phi_in.to_f64("phi_in")?;
     let u_out = m.u_out.to_vectors::<D>("u_out")?;
     let p_out = m.p_out.to_f64("p_out")?;
     let phi = m.phi.to_f64("phi")?;
@@ -117,6 +118,7 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
         ("roles", role.len()),
         ("u_star", u_star.len()),
         ("p_in", p_in.len()),
+        ("phi_in", phi_in.len()),
         ("u_out", u_out.len()),
         ("p_out", p_out.len()),
         ("phi", phi.len()),
@@ -139,6 +141,7 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     }
     let mut step = ProjectionStep::<D>::new();
     step.u_star = u_star;
+    step.phi = phi_in;
     step.project(&mut particles, &nl, boundary.as_ref(), &params, m.dt)?;
     let flat = |v: &[[f64; D]]| v.iter().flatten().copied().collect::<Vec<f64>>();
     let (max_du, rel_du, su) = diff(&flat(&particles.u), &flat(&u_out));

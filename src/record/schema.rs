@@ -1444,6 +1444,8 @@ pub struct ProjectionInput {
     pub u_star: Array,
     /// Pressure `pⁿ` before the projection `[n]`.
     pub p_in: Array,
+    /// Increment held before the solve (CG's warm start) `[n]`.
+    pub phi_in: Array,
     /// Velocity after the projection `[n, D]`.
     pub u_out: Array,
     /// Pressure after the projection `[n]`.
@@ -1533,6 +1535,7 @@ impl ProjectionInput {
                     ("ghost_walls", Array::schema("ghost wall bit set [n] |u1 (0 for non-ghosts)")),
                     ("u_star", Array::schema("predictor velocity u* [n, D] <f8")),
                     ("p_in", Array::schema("pressure before the projection [n] <f8")),
+                    ("phi_in", Array::schema("increment before the solve (CG warm start) [n] <f8")),
                     ("u_out", Array::schema("velocity after the projection [n, D] <f8")),
                     ("p_out", Array::schema("pressure after the projection [n] <f8")),
                     ("phi", Array::schema("pressure increment phi [n] <f8")),

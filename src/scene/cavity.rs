@@ -416,10 +416,21 @@ pub fn run(
 /// [`run`], also returning the final simulation state (for plots of the particles).
 pub fn run_full(
     cfg: &CavityConfig,
+    observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
+) -> Result<(CavityResult, Simulation<2, Walls<2>>), Error> {
+    run_with(cfg, |_| {}, observer)
+}
+
+/// [`run_full`] with a `setup` hook that may adjust the simulation after it is built and before
+/// the first step (e.g. `sim.projection.capture = true` to record projection inputs).
+pub fn run_with(
+    cfg: &CavityConfig,
+    setup: impl FnOnce(&mut Simulation<2, Walls<2>>),
     mut observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
 ) -> Result<(CavityResult, Simulation<2, Walls<2>>), Error> {
     let start = Instant::now();
     let mut sim = build(cfg)?;
+    setup(&mut sim);
     let re_key = cfg.re.round() as u32;
     let (ys, xs) = sample_positions(re_key);
     let st = cfg.steady;

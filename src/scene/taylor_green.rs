@@ -232,10 +232,21 @@ pub struct TaylorGreenResult {
 /// Runs to `t_end` (the last step is shortened to land on it).
 pub fn run(
     cfg: &TaylorGreenConfig,
+    observer: impl FnMut(&FlowReport, &Simulation<2, PeriodicBox<2>>) -> Result<(), Error>,
+) -> Result<TaylorGreenResult, Error> {
+    run_with(cfg, |_| {}, observer)
+}
+
+/// [`run`] with a `setup` hook that may adjust the simulation after it is built and before the
+/// first step (e.g. `sim.projection.capture = true` to record projection inputs).
+pub fn run_with(
+    cfg: &TaylorGreenConfig,
+    setup: impl FnOnce(&mut Simulation<2, PeriodicBox<2>>),
     mut observer: impl FnMut(&FlowReport, &Simulation<2, PeriodicBox<2>>) -> Result<(), Error>,
 ) -> Result<TaylorGreenResult, Error> {
     let start = Instant::now();
     let mut sim = build(cfg)?;
+    setup(&mut sim);
     let mut res = TaylorGreenResult {
         re: cfg.re,
         n: cfg.n,
