@@ -15,9 +15,9 @@
 //! give the same candidates; in a Lagrangian run the original candidates were found some steps
 //! earlier, the pattern has other explicit zeros, the fill-reducing ordering differs and so does
 //! the round-off (differences at the level of the solve's residual). With conjugate gradients the
-//! original solve started from the previous step's increment (warm start, not part of the
-//! capture) and its dot products are rayon reductions whose association depends on the thread
-//! count and on work stealing, so the difference is bounded by the solver tolerance instead.
+//! re-run starts from the recorded warm start (`phi_in`), but the dot products are rayon
+//! reductions whose association depends on the thread count and on work stealing, so the
+//! difference is bounded by the solver tolerance instead.
 
 use super::replay::{scan, Scan};
 use super::schema::{decode_roles, ProjectionInput, TOPIC_PROJECTION};
