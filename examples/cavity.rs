@@ -16,10 +16,13 @@ use gpm::flow::{Integrator, Motion, Shifting, VolumeRule};
 use gpm::kernel::Weight;
 use gpm::poisson::SolverKind;
 use gpm::projection::Scheme;
-use gpm::scene::cavity::{run_full, write_plots, write_tables, CavityConfig};
+use gpm::record::{RecordError, RecordLevel, Recorder};
+use gpm::scene::cavity::{run_with, write_plots, write_tables, CavityConfig};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 #[derive(Parser, Debug)]
 #[command(about = "Lid-driven cavity with the GPM projection, compared with Ghia et al. (1982)")]
@@ -75,6 +78,13 @@ struct Args {
     /// Output directory.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Recording into OUT/run.mcap: none, diagnostics (every step) or full (also particles and
+    /// projection inputs every --record-every steps).
+    #[arg(long, default_value = "diagnostics")]
+    record: RecordLevel,
+    /// Steps between particle snapshots at --record full.
+    #[arg(long, default_value_t = 10)]
+    record_every: u64,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -133,17 +143,57 @@ fn run(a: Args) -> Result<()> {
         );
         b
     };
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {out:?}"))?;
+    let mcap = out.join("run.mcap");
+    let mut rec = Recorder::create(
+        &mcap,
+        a.record,
+        a.record_every,
+        &serde_json::json!({ "scene": "cavity", "config": &cfg }),
+    )?;
+    // Ctrl-C stops the run after the current step; the recording is then finished cleanly
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
     let t_end = cfg.t_end;
-    let (res, sim) = run_full(&cfg, |rep, _| {
-        bar.set_position((1000.0 * rep.time / t_end) as u64);
-        bar.set_message(format!(
-            "{:.2} step {} ke {:.5}",
-            rep.time, rep.step, rep.projection.kinetic_energy
-        ));
-        Ok(())
-    })
-    .context("cavity run failed")?;
+    let capture = a.record == RecordLevel::Full;
+    let run = run_with(
+        &cfg,
+        |sim| sim.projection.capture = capture,
+        |rep, sim| {
+            rec.write_step(rep, sim)?;
+            bar.set_position((1000.0 * rep.time / t_end) as u64);
+            bar.set_message(format!(
+                "{:.2} step {} ke {:.5}",
+                rep.time, rep.step, rep.projection.kinetic_energy
+            ));
+            if stop.load(Ordering::SeqCst) {
+                return Err(RecordError::Interrupted { step: rep.step }.into());
+            }
+            Ok(())
+        },
+    );
     bar.finish_and_clear();
+    // finish the recording whatever happened, so that every recorded step reads back
+    let finished = rec.finish();
+    let (res, sim) = match run {
+        Ok(v) => v,
+        Err(e) => {
+            if let Err(fe) = &finished {
+                eprintln!("error: finishing {} failed: {fe}", mcap.display());
+            } else if a.record != RecordLevel::None {
+                eprintln!("the recording up to the failure is in {}", mcap.display());
+            }
+            return Err(e).context("cavity run failed");
+        }
+    };
+    let summary = finished.with_context(|| format!("finishing {}", mcap.display()))?;
+    for note in &summary.notes {
+        eprintln!("note: {note}");
+    }
     write_tables(&out, &res, &cfg).with_context(|| format!("writing tables into {out:?}"))?;
     write_plots(&out, &res, &sim).context("writing plots")?;
     println!(
@@ -167,6 +217,15 @@ fn run(a: Args) -> Result<()> {
         );
     } else {
         println!("no Ghia table for Re = {} (tables: 100, 1000)", res.re);
+    }
+    if a.record != RecordLevel::None {
+        println!(
+            "recorded {} steps into {} ({} bytes); inspect with `cargo run --release --bin gpm -- replay {}`",
+            summary.steps,
+            mcap.display(),
+            summary.bytes,
+            mcap.display()
+        );
     }
     println!(
         "max Theorem 4.5 ratio {:.3}, c0 in [{:.4}, {:.4}]; outputs in {}",

@@ -20,10 +20,13 @@ use clap::Parser;
 use gpm::flow::{Integrator, Motion, Shifting};
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
-use gpm::scene::taylor_green::{build, run, TaylorGreenConfig};
+use gpm::record::{RecordError, RecordLevel, Recorder};
+use gpm::scene::taylor_green::{build, run, run_with, TaylorGreenConfig};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 #[derive(Parser, Debug)]
 #[command(about = "Taylor–Green vortex with the GPM projection, against the exact solution")]
@@ -73,6 +76,12 @@ struct Args {
     /// Output directory.
     #[arg(long, default_value = "results/taylor_green")]
     out: PathBuf,
+    /// Recording into OUT/run.mcap (single runs): none, diagnostics or full.
+    #[arg(long, default_value = "diagnostics")]
+    record: RecordLevel,
+    /// Steps between particle snapshots at --record full.
+    #[arg(long, default_value_t = 10)]
+    record_every: u64,
 }
 
 fn config(a: &Args) -> TaylorGreenConfig {
@@ -275,8 +284,43 @@ fn convergence(a: &Args) -> Result<()> {
 fn single(a: &Args) -> Result<()> {
     let cfg = config(a);
     cfg.validate().context("invalid configuration")?;
-    let res = run(&cfg, |_, _| Ok(())).context("Taylor–Green run failed")?;
     std::fs::create_dir_all(&a.out)?;
+    let mcap = a.out.join("run.mcap");
+    let mut rec = Recorder::create(
+        &mcap,
+        a.record,
+        a.record_every,
+        &serde_json::json!({ "scene": "taylor_green", "config": &cfg }),
+    )?;
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
+    let capture = a.record == RecordLevel::Full;
+    let run = run_with(
+        &cfg,
+        |sim| sim.projection.capture = capture,
+        |rep, sim| {
+            rec.write_step(rep, sim)?;
+            if stop.load(Ordering::SeqCst) {
+                return Err(RecordError::Interrupted { step: rep.step }.into());
+            }
+            Ok(())
+        },
+    );
+    let finished = rec.finish();
+    let res = match run {
+        Ok(r) => r,
+        Err(e) => {
+            if let Err(fe) = &finished {
+                eprintln!("error: finishing {} failed: {fe}", mcap.display());
+            }
+            return Err(e).context("Taylor–Green run failed");
+        }
+    };
+    finished.with_context(|| format!("finishing {}", mcap.display()))?;
     #[derive(serde::Serialize)]
     struct Summary<'a> {
         re: f64,
