@@ -54,6 +54,7 @@
 #![warn(missing_docs)]
 
 pub mod boundary;
+pub mod consistent;
 pub mod diagnostics;
 pub mod error;
 pub mod flow;
