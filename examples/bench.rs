@@ -1,0 +1,376 @@
+//! Per-step cost of the projection and the flow around it, stage by stage.
+//!
+//! ```text
+//! cargo run --release --example bench -- --quick          # ≤ 2 minutes
+//! cargo run --release --example bench -- --out results/bench
+//! ```
+//!
+//! Each configuration runs in a child process (so that its peak memory, `VmHWM`, is its own):
+//! a periodic Taylor–Green flow (2D: `u = −cos 2πx sin 2πy, v = sin 2πx cos 2πy`; 3D:
+//! `u = sin 2πx cos 2πy cos 2πz, v = −cos 2πx sin 2πy cos 2πz, w = 0`) with N particles, in
+//! two frames: `fixed` (particles do not move: everything that depends only on positions can be
+//! reused) and `moving` (Lagrangian: the neighbour pairs are re-measured, volumes and matrix
+//! values change every step). After warm-up steps, the mean time per step of each stage is
+//! written to `steps.csv` (`d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step`),
+//! together with the peak memory, and a table is printed. The cavity reuse comparison runs the
+//! n = 100 cavity with every reuse switched on and off. The SpMV bandwidth of the Poisson matrix
+//! is compared with a stream copy measured in the same process.
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use gpm::boundary::PeriodicBox;
+use gpm::flow::{FlowParams, Integrator, Motion, Simulation, TimeStepLimits, VolumeRule};
+use gpm::geometry::lattice;
+use gpm::kernel::Weight;
+use gpm::neighbors::{NeighborConfig, Periodicity};
+use gpm::particles::{Particles, Role};
+use gpm::poisson::{SolveParams, SolverKind};
+use gpm::projection::{ProjectionParams, Scheme};
+use gpm::record::{RecordLevel, Recorder};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::Instant;
+
+#[derive(Parser, Debug, Clone)]
+#[command(about = "Stage-by-stage cost of a gpm step, solvers, reuse, threads and memory")]
+struct Args {
+    /// A CI-sized subset (≤ 2 minutes).
+    #[arg(long)]
+    quick: bool,
+    /// Output directory for steps.csv.
+    #[arg(long, default_value = "results/bench")]
+    out: PathBuf,
+    /// Run one configuration and print its JSON (used by the parent process).
+    #[arg(long, hide = true)]
+    child: Option<String>,
+}
+
+/// One configuration.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Case {
+    d: usize,
+    n_particles: usize,
+    frame: String,
+    solver: SolverKind,
+    reuse: bool,
+    threads: usize,
+    steps: usize,
+    warmup: usize,
+}
+
+/// One configuration's result.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct Outcome {
+    case: Case,
+    stages: Vec<(String, f64)>,
+    total: f64,
+    peak_mb: f64,
+    poisson_iters: f64,
+    spmv_gbs: f64,
+    copy_gbs: f64,
+}
+
+fn peak_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()))
+        })
+        .map(|kb| kb / 1024.0)
+        .unwrap_or(f64::NAN)
+}
+
+fn solve_params(solver: SolverKind, reuse: bool) -> SolveParams {
+    SolveParams {
+        solver,
+        rel_tol: 1e-8,
+        warm_start: reuse,
+        reuse_symbolic: reuse,
+        reuse_numeric: reuse,
+        reuse_values: reuse,
+        ..Default::default()
+    }
+}
+
+fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>>> {
+    let side = (c.n_particles as f64).powf(1.0 / D as f64).round() as usize;
+    let dx = 1.0 / side as f64;
+    let mut p = Particles::<D>::new();
+    for x in lattice([0.0; D], [1.0; D], dx) {
+        let (s0, c0) = (2.0 * PI * x[0]).sin_cos();
+        let (s1, c1) = (2.0 * PI * x[1]).sin_cos();
+        let u: [f64; D] = if D == 2 {
+            std::array::from_fn(|a| if a == 0 { -c0 * s1 } else { s0 * c1 })
+        } else {
+            let c2 = (2.0 * PI * x[2]).cos();
+            std::array::from_fn(|a| match a {
+                0 => s0 * c1 * c2,
+                1 => -c0 * s1 * c2,
+                _ => 0.0,
+            })
+        };
+        p.push(x, u, 0.0, dx.powi(D as i32), Role::Fluid);
+    }
+    let periodic = Periodicity::all([0.0; D], [1.0; D]);
+    let mut projection = ProjectionParams::<D>::new(0.01);
+    projection.scheme = Scheme::Rotational;
+    projection.solve = solve_params(c.solver, c.reuse);
+    projection.reuse_diagnostics = c.reuse;
+    let moving = c.frame == "moving";
+    let params = FlowParams {
+        projection,
+        limits: TimeStepLimits {
+            dt_fixed: Some(0.1 * dx),
+            ..Default::default()
+        },
+        motion: if moving { Motion::Lagrangian } else { Motion::Eulerian },
+        integrator: Integrator::Ab2,
+        shifting: None,
+        volumes: VolumeRule::NumberDensity,
+        dx,
+    };
+    let skin = if c.reuse { 0.3 } else { 0.0 };
+    let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, skin);
+    Ok(Simulation::new(p, PeriodicBox { periodic }, config, params)?)
+}
+
+/// Memory bandwidth of a parallel copy of `len` doubles (GB/s, read + write).
+fn stream_copy(len: usize) -> f64 {
+    let a = vec![1.0f64; len];
+    let mut b = vec![0.0f64; len];
+    let mut best = f64::INFINITY;
+    for _ in 0..5 {
+        let t = Instant::now();
+        b.par_iter_mut()
+            .zip(a.par_iter())
+            .with_min_len(1 << 14)
+            .for_each(|(y, x)| *y = *x);
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    std::hint::black_box(&b);
+    16.0 * len as f64 / best / 1e9
+}
+
+fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
+    let mut sim = periodic_sim::<D>(c)?;
+    let dir = std::env::temp_dir().join(format!("gpm_bench_{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let mut rec = Recorder::create(dir.join("bench.mcap"), RecordLevel::Diagnostics, 10, &serde_json::json!({"bench": c}))?;
+    let names = [
+        "neighbors",
+        "operators",
+        "assembly",
+        "solve",
+        "correction",
+        "diagnostics",
+        "recording",
+        "other",
+    ];
+    let mut acc = [0.0f64; 8];
+    let mut total = 0.0;
+    let mut iters = 0.0;
+    for k in 0..c.warmup + c.steps {
+        if !c.reuse {
+            sim.nl.invalidate();
+        }
+        let t0 = Instant::now();
+        let r = sim.advance()?;
+        let tr = Instant::now();
+        rec.write_step(&r, &sim)?;
+        let rec_s = tr.elapsed().as_secs_f64();
+        let wall = t0.elapsed().as_secs_f64();
+        if k < c.warmup {
+            continue;
+        }
+        let p = &r.projection;
+        let v = &sim.projection.viscous_info;
+        let assembly = p.solve.assemble_seconds + v.assemble_seconds;
+        let solve = p.solve.symbolic_seconds
+            + p.solve.numeric_seconds
+            + p.solve.solve_seconds
+            + v.symbolic_seconds
+            + v.numeric_seconds
+            + v.solve_seconds;
+        let viscous_total = v.assemble_seconds + v.symbolic_seconds + v.numeric_seconds + v.solve_seconds;
+        let operators = (p.timings.predictor - viscous_total).max(0.0) + p.timings.source;
+        let stages = [
+            r.neighbors_seconds,
+            operators,
+            assembly,
+            solve,
+            p.timings.correction,
+            p.timings.diagnostics,
+            rec_s,
+            0.0,
+        ];
+        let known: f64 = stages.iter().sum();
+        for i in 0..7 {
+            acc[i] += stages[i];
+        }
+        acc[7] += (wall - known).max(0.0);
+        total += wall;
+        iters += p.solve.iters as f64;
+    }
+    rec.finish()?;
+    let _ = std::fs::remove_dir_all(&dir);
+    let m = c.steps as f64;
+    // SpMV bandwidth on the Poisson matrix just used
+    let a = &sim.projection.solver.assembly;
+    let x = vec![1.0; a.n()];
+    let mut y = vec![0.0; a.n()];
+    let mut best = f64::INFINITY;
+    for _ in 0..10 {
+        let t = Instant::now();
+        a.spmv(&x, &mut y);
+        best = best.min(t.elapsed().as_secs_f64());
+    }
+    std::hint::black_box(&y);
+    let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
+    let spmv_gbs = bytes / best / 1e9;
+    // peak memory of the run, before the copy benchmark allocates its arrays
+    let peak = peak_mb();
+    // 2 × 256 MB: far larger than the caches, so this is the memory bandwidth
+    let copy_gbs = stream_copy(1 << 25);
+    Ok(Outcome {
+        case: c.clone(),
+        stages: names.iter().zip(acc).map(|(n, s)| (n.to_string(), s / m)).collect(),
+        total: total / m,
+        peak_mb: peak,
+        poisson_iters: iters / m,
+        spmv_gbs,
+        copy_gbs,
+    })
+}
+
+fn child(spec: &str) -> Result<()> {
+    let c: Case = serde_json::from_str(spec).context("child spec")?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(c.threads)
+        .build()
+        .context("thread pool")?;
+    let o = pool.install(|| match c.d {
+        2 => run_case::<2>(&c),
+        3 => run_case::<3>(&c),
+        d => bail!("dimension {d}"),
+    })?;
+    println!("{}", serde_json::to_string(&o)?);
+    Ok(())
+}
+
+fn spawn(c: &Case) -> Result<Outcome> {
+    let exe = std::env::current_exe()?;
+    let out = Command::new(exe)
+        .arg("--child")
+        .arg(serde_json::to_string(c)?)
+        .output()
+        .context("spawning a benchmark child")?;
+    if !out.status.success() {
+        bail!(
+            "case {:?} failed: {}",
+            c,
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    let line = String::from_utf8_lossy(&out.stdout);
+    Ok(serde_json::from_str(line.trim()).context("child output")?)
+}
+
+fn main_inner(a: Args) -> Result<()> {
+    if let Some(spec) = &a.child {
+        return child(spec);
+    }
+    std::fs::create_dir_all(&a.out)?;
+    let mut cases = Vec::new();
+    let case = |d, n, frame: &str, solver, reuse, threads, steps| Case {
+        d,
+        n_particles: n,
+        frame: frame.to_string(),
+        solver,
+        reuse,
+        threads,
+        steps,
+        warmup: 3,
+    };
+    if a.quick {
+        for frame in ["fixed", "moving"] {
+            cases.push(case(2, 10_000, frame, SolverKind::Auto, true, 2, 10));
+            cases.push(case(2, 10_000, frame, SolverKind::Auto, false, 2, 5));
+        }
+        cases.push(case(2, 10_000, "moving", SolverKind::Cg, true, 2, 10));
+        cases.push(case(2, 10_000, "fixed", SolverKind::Auto, true, 1, 10));
+        cases.push(case(3, 10_000, "fixed", SolverKind::Auto, true, 2, 5));
+    } else {
+        for (d, n, steps) in [(2, 10_000, 20), (2, 100_000, 10), (2, 1_000_000, 4), (3, 10_000, 10), (3, 100_000, 4)] {
+            for frame in ["fixed", "moving"] {
+                cases.push(case(d, n, frame, SolverKind::Auto, true, 2, steps));
+            }
+        }
+        // solver comparison, reuse and threads at 10⁵ (2D) and 10⁴ (3D)
+        for solver in [SolverKind::Cholesky, SolverKind::Cg] {
+            cases.push(case(2, 100_000, "moving", solver, true, 2, 6));
+        }
+        cases.push(case(3, 10_000, "moving", SolverKind::Cg, true, 2, 6));
+        for frame in ["fixed", "moving"] {
+            cases.push(case(2, 100_000, frame, SolverKind::Auto, false, 2, 4));
+            cases.push(case(2, 100_000, frame, SolverKind::Auto, true, 1, 6));
+        }
+    }
+    let mut csv = std::fs::File::create(a.out.join("steps.csv"))?;
+    writeln!(csv, "d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step,peak_mb")?;
+    println!(
+        "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} | {:>9} {:>7} {:>6} {:>6}",
+        "d", "N", "frame", "solver", "reuse", "thr", "neigh", "ops", "assem", "solve", "corr", "diag", "rec", "other", "total ms", "MB", "iters", "GB/s"
+    );
+    for c in &cases {
+        match spawn(c) {
+            Ok(o) => {
+                let ms = |k: usize| o.stages[k].1 * 1e3;
+                println!(
+                    "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} | {:>9.2} {:>7.0} {:>6.1} {:>6.1}",
+                    c.d, c.n_particles, c.frame, c.solver.to_string(), c.reuse, c.threads,
+                    ms(0), ms(1), ms(2), ms(3), ms(4), ms(5), ms(6), ms(7),
+                    o.total * 1e3, o.peak_mb, o.poisson_iters, o.spmv_gbs
+                );
+                for (stage, s) in &o.stages {
+                    writeln!(
+                        csv,
+                        "{},{},{},{},{},{},{},{:.6e},{:.1}",
+                        c.d, c.n_particles, c.frame, c.solver, c.reuse, c.threads, stage, s, o.peak_mb
+                    )?;
+                }
+                writeln!(
+                    csv,
+                    "{},{},{},{},{},{},total,{:.6e},{:.1}",
+                    c.d, c.n_particles, c.frame, c.solver, c.reuse, c.threads, o.total, o.peak_mb
+                )?;
+                if c.d == 2 && c.n_particles == 10_000 && c.reuse && c.threads == 2 && c.frame == "fixed" {
+                    println!(
+                        "   SpMV {:.1} GB/s vs stream copy {:.1} GB/s in the same process ({:.0} %)",
+                        o.spmv_gbs,
+                        o.copy_gbs,
+                        100.0 * o.spmv_gbs / o.copy_gbs
+                    );
+                }
+            }
+            Err(e) => println!("{:?}: {e:#}", c),
+        }
+    }
+    println!("wrote {}", a.out.join("steps.csv").display());
+    Ok(())
+}
+
+fn main() -> std::process::ExitCode {
+    match main_inner(Args::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
