@@ -17,6 +17,7 @@
 //! | --- | --- | --- |
 //! | [`grad_renormalised`] | `∇ᶜφ_i = B_i ∇h φ_i`, `B_i = M_i⁻¹`, `M_i = d Σ ω_j x_ji⊗x_ji w_h/r²` | 1 (exact on linear fields) |
 //! | [`Renormalisation::apply_transpose_into`] + [`crate::operators::div_sum_into`] | `∇̂h·(Bᵀψ)`: the divergence adjoint to `∇ᶜ` | as `∇̂h·` (−1) |
+//! | [`div_renormalised`] | `∇ᶜ·ψ_i = Σ_a (B_i ∇h ψ_a)_a` | 1 (exact on linear fields) |
 //! | [`ls_gradient_laplacian`] | weighted least squares, quadratic basis, `f_i` known | gradient 2, Laplacian 1 |
 //! | [`ls_interpolate`] | weighted least squares, linear basis, self included | 2 |
 //! | [`shepard_interpolate`] | `Σ f_j w ω / Σ w ω` (self included) | 1 |
@@ -275,6 +276,67 @@ pub fn grad_renormalised<const D: usize>(
 ) -> Vec<[f64; D]> {
     let mut out = vec![[0.0; D]; renorm.b.len()];
     grad_renormalised_into(nl, vol, renorm, phi, &mut out);
+    out
+}
+
+/// Renormalised divergence `∇ᶜ·ψ_i = Σ_a (B_i ∇h ψ_a)_a = Σ_{a,b} (B_i)_{ab} (∇h ψ_a)_b` into `out`
+/// (rows `0..out.len()`): the trace of the corrected velocity gradient, exact for linear `ψ` on
+/// any distribution whose rows did not fall back (first-order consistent), Galilean invariant
+/// (zero for a uniform field, unlike the sum-form `∇̂h·`, whose value there is
+/// `2 ψ_i · d Σ_j ω_j x_ji w_h/r²`). Not adjoint to any gradient of the projection, and its
+/// `ω`-weighted sum does not vanish (no discrete Gauss theorem).
+pub fn div_renormalised_into<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    renorm: &Renormalisation<D>,
+    psi: &[[f64; D]],
+    out: &mut [f64],
+) {
+    assert!(
+        out.len() <= renorm.b.len(),
+        "renormalisation computed for {} rows, {} requested",
+        renorm.b.len(),
+        out.len()
+    );
+    let d = D as f64;
+    out.par_iter_mut()
+        .with_min_len(MIN_ROWS)
+        .enumerate()
+        .for_each(|(i, o)| {
+            let pi = psi[i];
+            // g[a][b] = Σ ω_j (ψ_j − ψ_i)_a (x_ji)_b w/r²
+            let mut g = [[0.0; D]; D];
+            for k in nl.row(i) {
+                let j = nl.indices[k] as usize;
+                let c = vol[j] * nl.wr2[k];
+                let dx = &nl.dx[k];
+                for a in 0..D {
+                    let du = c * (psi[j][a] - pi[a]);
+                    for (gab, xb) in g[a].iter_mut().zip(dx) {
+                        *gab += du * xb;
+                    }
+                }
+            }
+            let b = &renorm.b[i];
+            let mut s = 0.0;
+            for a in 0..D {
+                for c in 0..D {
+                    s += b[a][c] * g[a][c];
+                }
+            }
+            *o = d * s;
+        });
+}
+
+/// Renormalised divergence at every row of `renorm`.
+pub fn div_renormalised<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    renorm: &Renormalisation<D>,
+    psi: &[[f64; D]],
+) -> Vec<f64> {
+    let mut out = vec![0.0; renorm.b.len()];
+    div_renormalised_into(nl, vol, renorm, psi, &mut out);
     out
 }
 

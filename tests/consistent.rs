@@ -53,7 +53,8 @@ fn random_volumes(n: usize, cell: f64, seed: u64) -> Vec<f64> {
 }
 
 /// `∇ᶜ(c·x + c0) = c` at every particle, boundary rows included, for any weight and any
-/// volumes: `∇h` of a linear field is `M_i c`, and `B_i = M_i⁻¹`.
+/// volumes: `∇h` of a linear field is `M_i c`, and `B_i = M_i⁻¹`; likewise `∇ᶜ·ψ = tr A` for
+/// `ψ = A x + b`.
 #[test]
 fn renormalised_gradient_is_exact_for_linear_fields() {
     for (t, &w) in TEST_WEIGHTS.iter().enumerate() {
@@ -72,6 +73,15 @@ fn renormalised_gradient_is_exact_for_linear_fields() {
                     "{w} 2D row {i}: {gi:?} vs {c:?}"
                 );
             }
+        }
+        // the renormalised divergence is exact for linear vector fields (trace of the gradient)
+        let psi: Vec<[f64; 2]> = x
+            .iter()
+            .map(|p| [0.5 + 2.0 * p[0] - p[1], -1.0 + 0.25 * p[0] + 3.0 * p[1]])
+            .collect();
+        let dc = div_renormalised(&nl, &vol, &r, &psi);
+        for (i, v) in dc.iter().enumerate() {
+            assert!((v - 5.0).abs() < 1e-10, "{w} 2D divergence row {i}: {v}");
         }
         // and the plain difference gradient is not exact there (the correction does something)
         let gd = grad_diff(&nl, &vol, &phi);
