@@ -7,9 +7,10 @@
 //! to the right side. The same factorisation serves every component; with fixed particles and a
 //! fixed `Δt` it is computed once and reused for every step.
 
+use super::amg::{AmgCache, AmgSetup};
 use super::assembly::Assembly;
 use super::direct::Direct;
-use super::iterative::pcg;
+use super::iterative::{pcg, pcg_with, CgInfo};
 use super::{SolveInfo, SolveParams, SolverKind};
 use crate::diagnostics::alias;
 use crate::error::SolveError;
@@ -24,6 +25,8 @@ pub struct HelmholtzSolver {
     pub assembly: Assembly,
     /// Cholesky caches.
     pub direct: Direct,
+    /// AMG hierarchy (used with [`SolverKind::Amg`]).
+    pub amg: AmgCache,
     b: Vec<f64>,
     x: Vec<f64>,
     sigma: Vec<f64>,
@@ -37,8 +40,9 @@ impl HelmholtzSolver {
 
     /// Solves `u_i − c Δh u_i = r_i` at the fluid particles for each component. `ghost_rule(j)`
     /// gives `(σ, b)` of ghost `j`; Dirichlet particles keep the values in `u`. Writes the fluid
-    /// rows of `u` (other rows are left as they are).
-    #[allow(clippy::too_many_arguments)]
+        /// rows of `u` (other rows are left as they are).
+    // `d` runs over the components of each `u[p]`
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
     pub fn solve<const D: usize>(
         &mut self,
         nl: &NeighborList<D>,
@@ -93,6 +97,9 @@ impl HelmholtzSolver {
             }
         }
         let assemble_seconds = t0.elapsed().as_secs_f64();
+        // Auto: Cholesky in 2D up to the limit, Jacobi-CG otherwise (H = W + cK is dominated by
+        // the mass term W for the usual viscous steps, where Jacobi already converges quickly);
+        // AMG-CG only on request
         let kind = match params.solver {
             SolverKind::Auto => {
                 if D == 2 && m <= params.direct_limit {
@@ -143,8 +150,19 @@ impl HelmholtzSolver {
                     info.solve_seconds += ri.solve_seconds;
                 }
             }
-            SolverKind::Cg => {
+            SolverKind::Cg | SolverKind::Amg => {
+                let reuse = params.amg_reuse();
+                if kind == SolverKind::Amg {
+                    info.amg_setup = self.amg.prepare(a, reuse);
+                    let h = self.amg.hierarchy().expect("prepared hierarchy");
+                    info.amg_levels = h.stats().levels();
+                    info.amg_operator_complexity = h.stats().operator_complexity();
+                    if matches!(info.amg_setup, AmgSetup::Rebuilt | AmgSetup::Refreshed) {
+                        info.amg_setup_seconds = h.stats().setup_seconds;
+                    }
+                }
                 let t = Instant::now();
+                let mut first: Option<CgInfo> = None;
                 for d in 0..D {
                     let x = &mut self.x[d * m..(d + 1) * m];
                     for (uix, &p) in a.particle.iter().enumerate() {
@@ -154,19 +172,29 @@ impl HelmholtzSolver {
                             0.0
                         };
                     }
-                    let ri = pcg(
-                        a,
-                        &self.b[d * m..(d + 1) * m],
-                        x,
-                        params.rel_tol,
-                        params.abs_tol,
-                        params.max_iters,
-                    )?;
+                    let b = &self.b[d * m..(d + 1) * m];
+                    let ri = if kind == SolverKind::Amg {
+                        pcg_with(
+                            a,
+                            b,
+                            x,
+                            params.rel_tol,
+                            params.abs_tol,
+                            params.max_iters,
+                            &mut self.amg.preconditioner(a),
+                        )?
+                    } else {
+                        pcg(a, b, x, params.rel_tol, params.abs_tol, params.max_iters)?
+                    };
+                    first.get_or_insert(ri);
                     info.iters += ri.iters;
                     info.abs_residual = info.abs_residual.max(ri.abs_residual);
                     info.rel_residual = info.rel_residual.max(ri.rel_residual);
                 }
                 info.solve_seconds = t.elapsed().as_secs_f64();
+                if let (SolverKind::Amg, Some(ri)) = (kind, first) {
+                    self.amg.record(&ri, reuse);
+                }
             }
         }
         for d in 0..D {

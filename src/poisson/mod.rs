@@ -8,9 +8,14 @@
 //! zero sum (the sum-form source already sums to zero when the discrete Gauss theorem holds; the
 //! removed defect is reported) and the solution is fixed to zero ω-weighted mean.
 //!
-//! Two solvers share [`PoissonSolver::solve`]: sparse Cholesky ([`direct`]) with symbolic reuse,
-//! and Jacobi-preconditioned CG ([`iterative`]) with warm start.
+//! Three solvers share [`PoissonSolver::solve`]: sparse Cholesky ([`direct`]) with symbolic reuse,
+//! Jacobi-preconditioned CG ([`iterative`]) with warm start, and CG preconditioned by a
+//! smoothed-aggregation AMG V-cycle ([`amg`]) whose hierarchy is reused across solves
+//! (values-only refresh, lagged refresh: [`amg::AmgCache`]). [`SolverKind::Auto`] takes
+//! Cholesky for 2D systems up to [`SolveParams::direct_limit`] unknowns and AMG-CG otherwise
+//! (always in 3D, where the Cholesky factor fills in far more).
 
+pub mod amg;
 pub mod assembly;
 pub mod direct;
 pub mod helmholtz;
@@ -23,6 +28,7 @@ use crate::particles::Role;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
+pub use amg::{Amg, AmgCache, AmgParams, AmgReuse, AmgSetup};
 pub use assembly::Assembly;
 pub use direct::Direct;
 pub use helmholtz::HelmholtzSolver;
@@ -35,7 +41,11 @@ pub enum SolverKind {
     Cholesky,
     /// Jacobi-preconditioned conjugate gradients with warm start.
     Cg,
-    /// Cholesky in 2D up to [`SolveParams::direct_limit`] unknowns, CG otherwise.
+    /// Conjugate gradients preconditioned by a smoothed-aggregation AMG V-cycle, with warm
+    /// start and a reused hierarchy ([`amg`]).
+    Amg,
+    /// Cholesky in 2D up to [`SolveParams::direct_limit`] unknowns, AMG-CG otherwise (always
+    /// AMG-CG in 3D).
     #[default]
     Auto,
 }
@@ -45,10 +55,11 @@ impl std::str::FromStr for SolverKind {
     fn from_str(s: &str) -> Result<Self, String> {
         match s.trim().to_ascii_lowercase().as_str() {
             "cholesky" | "direct" => Ok(SolverKind::Cholesky),
-            "cg" | "pcg" => Ok(SolverKind::Cg),
+            "cg" | "pcg" | "jacobi" | "cg-jacobi" => Ok(SolverKind::Cg),
+            "amg" | "cg-amg" | "amg-cg" => Ok(SolverKind::Amg),
             "auto" => Ok(SolverKind::Auto),
             _ => Err(format!(
-                "unknown solver '{s}': expected cholesky, cg or auto"
+                "unknown solver '{s}': expected cholesky, cg, amg or auto"
             )),
         }
     }
@@ -59,6 +70,7 @@ impl std::fmt::Display for SolverKind {
         f.write_str(match self {
             SolverKind::Cholesky => "cholesky",
             SolverKind::Cg => "cg",
+            SolverKind::Amg => "amg",
             SolverKind::Auto => "auto",
         })
     }
@@ -80,13 +92,50 @@ pub struct SolveParams {
     pub warm_start: bool,
     /// Cholesky: reuse the symbolic analysis while the pattern is unchanged (default true).
     pub reuse_symbolic: bool,
-    /// Cholesky: reuse the numeric factor while the matrix values are unchanged (default true).
+    /// Cholesky: reuse the numeric factor while the matrix values are unchanged; AMG: keep the
+    /// hierarchy as it is while the matrix values are unchanged (default true).
     pub reuse_numeric: bool,
     /// Skip refilling the matrix values while the pair data (neighbour-list generation),
     /// volumes and coefficients are unchanged (default true).
     pub reuse_values: bool,
     /// `Auto`: largest 2D system solved directly (default 200 000 unknowns).
     pub direct_limit: usize,
+    /// AMG: when only the matrix values changed (same pattern), recompute the Galerkin operators
+    /// on the existing aggregates and prolongators instead of rebuilding (default true).
+    pub amg_reuse_values: bool,
+    /// AMG: when only the matrix values changed, keep the hierarchy (lagged) while CG's
+    /// iterations per decade of residual reduction stay within `amg_lag_factor` times those
+    /// right after the last refresh (default true).
+    pub amg_lag: bool,
+    /// AMG: the lag threshold (default 1.5); a values-only refresh that is itself this much
+    /// slower than right after the last full rebuild triggers a full rebuild.
+    pub amg_lag_factor: f64,
+}
+
+impl SolveParams {
+    /// The AMG reuse switches of these parameters.
+    pub fn amg_reuse(&self) -> AmgReuse {
+        AmgReuse {
+            unchanged: self.reuse_numeric,
+            values: self.amg_reuse_values,
+            lag: self.amg_lag,
+            lag_factor: self.amg_lag_factor,
+        }
+    }
+
+    /// The solver `Auto` resolves to for `n` unknowns in dimension `d` (other kinds unchanged).
+    pub fn resolve(&self, d: usize, n: usize) -> SolverKind {
+        match self.solver {
+            SolverKind::Auto => {
+                if d == 2 && n <= self.direct_limit {
+                    SolverKind::Cholesky
+                } else {
+                    SolverKind::Amg
+                }
+            }
+            k => k,
+        }
+    }
 }
 
 impl Default for SolveParams {
@@ -101,6 +150,9 @@ impl Default for SolveParams {
             reuse_numeric: true,
             reuse_values: true,
             direct_limit: 200_000,
+            amg_reuse_values: true,
+            amg_lag: true,
+            amg_lag_factor: 1.5,
         }
     }
 }
@@ -139,15 +191,25 @@ pub struct SolveInfo {
     pub numeric_seconds: f64,
     /// Seconds: triangular solves or CG iterations.
     pub solve_seconds: f64,
+    /// AMG: what was done to the hierarchy before this solve ([`AmgSetup::None`] without AMG).
+    pub amg_setup: AmgSetup,
+    /// AMG: levels of the hierarchy, the finest and the coarsest included.
+    pub amg_levels: usize,
+    /// AMG: operator complexity `Σ_l nnz(A_l) / nnz(A_0)`.
+    pub amg_operator_complexity: f64,
+    /// Seconds: AMG setup of this solve (rebuild or refresh; 0 when reused or lagged).
+    pub amg_setup_seconds: f64,
 }
 
-/// Reusable solver state: matrix pattern and values, Cholesky caches, scratch.
+/// Reusable solver state: matrix pattern and values, Cholesky caches, AMG hierarchy, scratch.
 #[derive(Debug, Default)]
 pub struct PoissonSolver {
     /// The assembled matrix.
     pub assembly: Assembly,
     /// The direct solver's caches.
     pub direct: Direct,
+    /// The AMG hierarchy and its reuse state (its `params` set the next rebuild).
+    pub amg: AmgCache,
     b: Vec<f64>,
     x: Vec<f64>,
 }
@@ -230,16 +292,7 @@ impl PoissonSolver {
         }
         info.assemble_seconds = t0.elapsed().as_secs_f64();
 
-        let kind = match params.solver {
-            SolverKind::Auto => {
-                if D == 2 && n <= params.direct_limit {
-                    SolverKind::Cholesky
-                } else {
-                    SolverKind::Cg
-                }
-            }
-            k => k,
-        };
+        let kind = params.resolve(D, n);
         info.solver = kind;
         self.x.resize(n, 0.0);
         match kind {
@@ -265,8 +318,7 @@ impl PoissonSolver {
                 info.abs_residual = abs;
                 info.rel_residual = rel;
             }
-            SolverKind::Cg | SolverKind::Auto => {
-                let t = Instant::now();
+            SolverKind::Cg | SolverKind::Amg | SolverKind::Auto => {
                 for (u, &p) in a.particle.iter().enumerate() {
                     self.x[u] = if params.warm_start && phi[p as usize].is_finite() {
                         phi[p as usize]
@@ -274,18 +326,44 @@ impl PoissonSolver {
                         0.0
                     };
                 }
-                let r = iterative::pcg(
-                    a,
-                    &self.b,
-                    &mut self.x,
-                    params.rel_tol,
-                    params.abs_tol,
-                    params.max_iters,
-                )?;
+                let r = if kind == SolverKind::Amg {
+                    let reuse = params.amg_reuse();
+                    info.amg_setup = self.amg.prepare(a, reuse);
+                    let h = self.amg.hierarchy().expect("prepared hierarchy");
+                    info.amg_levels = h.stats().levels();
+                    info.amg_operator_complexity = h.stats().operator_complexity();
+                    if matches!(info.amg_setup, AmgSetup::Rebuilt | AmgSetup::Refreshed) {
+                        info.amg_setup_seconds = h.stats().setup_seconds;
+                    }
+                    let t = Instant::now();
+                    let r = iterative::pcg_with(
+                        a,
+                        &self.b,
+                        &mut self.x,
+                        params.rel_tol,
+                        params.abs_tol,
+                        params.max_iters,
+                        &mut self.amg.preconditioner(a),
+                    )?;
+                    info.solve_seconds = t.elapsed().as_secs_f64();
+                    self.amg.record(&r, reuse);
+                    r
+                } else {
+                    let t = Instant::now();
+                    let r = iterative::pcg(
+                        a,
+                        &self.b,
+                        &mut self.x,
+                        params.rel_tol,
+                        params.abs_tol,
+                        params.max_iters,
+                    )?;
+                    info.solve_seconds = t.elapsed().as_secs_f64();
+                    r
+                };
                 info.iters = r.iters;
                 info.abs_residual = r.abs_residual;
                 info.rel_residual = r.rel_residual;
-                info.solve_seconds = t.elapsed().as_secs_f64();
             }
         }
         // fix the constant of each floating component: zero ω-weighted mean

@@ -23,7 +23,7 @@ use crate::flow::{DtLimit, FlowReport};
 use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
 use crate::particles::Role;
-use crate::poisson::{SolveParams, SolverKind};
+use crate::poisson::{AmgSetup, SolveParams, SolverKind};
 use crate::projection::{ProjectionParams, Scheme};
 use base64::Engine as _;
 use serde::{Deserialize, Deserializer, Serialize};
@@ -123,7 +123,14 @@ fn scheme_schema() -> Value {
 }
 
 fn solver_kind_schema() -> Value {
-    string_enum("linear solver", &["cholesky", "cg", "auto"])
+    string_enum("linear solver", &["cholesky", "cg", "amg", "auto"])
+}
+
+fn amg_setup_schema() -> Value {
+    string_enum(
+        "what was done to the AMG hierarchy before the solve",
+        &["none", "reused", "lagged", "refreshed", "rebuilt"],
+    )
 }
 
 /// The schema of [`SolveParams`], derived from the JSON of its default value so that it follows
@@ -141,6 +148,9 @@ fn solve_params_schema() -> Value {
             "matrix values kept while pair data, volumes and coefficients are unchanged"
         }
         "direct_limit" => "Auto: largest 2D system solved directly",
+        "amg_reuse_values" => "AMG: values-only refresh of the Galerkin operators",
+        "amg_lag" => "AMG: keep the hierarchy while iterations stay low",
+        "amg_lag_factor" => "AMG: refresh threshold on iterations per decade",
         _ => "see gpm::poisson::SolveParams",
     };
     let default = serde_json::to_value(SolveParams::default()).expect("SolveParams serialises");
@@ -221,6 +231,18 @@ pub struct SolveDiagnostics {
     /// Seconds: triangular solves or CG iterations.
     #[serde(deserialize_with = "nullable")]
     pub iterate_seconds: f64,
+    /// AMG: what was done to the hierarchy before the solve (absent in older logs: `none`).
+    #[serde(default)]
+    pub amg_setup: AmgSetup,
+    /// AMG: levels of the hierarchy (0 without AMG).
+    #[serde(default)]
+    pub amg_levels: usize,
+    /// AMG: operator complexity (0 without AMG).
+    #[serde(default, deserialize_with = "nullable")]
+    pub amg_operator_complexity: f64,
+    /// Seconds: AMG setup (rebuild or refresh) in this solve.
+    #[serde(default, deserialize_with = "nullable")]
+    pub amg_setup_seconds: f64,
 }
 
 /// Wall-clock seconds per stage of one step.
@@ -346,6 +368,10 @@ impl StepDiagnostics {
                 symbolic_seconds: p.solve.symbolic_seconds,
                 numeric_seconds: p.solve.numeric_seconds,
                 iterate_seconds: p.solve.solve_seconds,
+                amg_setup: p.solve.amg_setup,
+                amg_levels: p.solve.amg_levels,
+                amg_operator_complexity: p.solve.amg_operator_complexity,
+                amg_setup_seconds: p.solve.amg_setup_seconds,
             },
             div_before: p.div_before,
             div_after: p.div_after,
@@ -414,6 +440,10 @@ impl StepDiagnostics {
                                 ("symbolic_seconds", secs("symbolic analysis")),
                                 ("numeric_seconds", secs("numeric factorisation")),
                                 ("iterate_seconds", secs("triangular solves or CG iterations")),
+                                ("amg_setup", amg_setup_schema()),
+                                ("amg_levels", count("AMG levels (0 without AMG)")),
+                                ("amg_operator_complexity", number_or_null("AMG operator complexity sum nnz(A_l)/nnz(A_0) (0 without AMG)")),
+                                ("amg_setup_seconds", secs("AMG rebuild or refresh")),
                             ],
                         ),
                     ),
