@@ -69,6 +69,32 @@ pub enum InputError {
         /// Minimum admissible period.
         needed: f64,
     },
+    /// The influence radius is at or below the smallest particle distance (`h ≤ min r_ij`), so
+    /// no particle has a neighbour: the paper's standing assumption `min r_ij < h` fails.
+    #[error(
+        "influence radius h = {h} is at or below the minimum particle spacing {min_spacing} \
+         (particles {i} and {j}): no particle has a neighbour; h must exceed the spacing \
+         (typically h/dx = 2 to 4)"
+    )]
+    RadiusTooSmall {
+        /// The influence radius.
+        h: f64,
+        /// The smallest distance between two particles.
+        min_spacing: f64,
+        /// One particle of the closest pair.
+        i: usize,
+        /// The other.
+        j: usize,
+    },
+    /// A configuration file or message that cannot be read into the configuration type; `key`
+    /// is the path of the offending entry (`limits.cfl`, `n`; empty for the document itself).
+    #[error("configuration key '{key}': {reason}")]
+    Config {
+        /// Path of the entry, dot-separated.
+        key: String,
+        /// What is wrong (from the parser).
+        reason: String,
+    },
     /// A particle outside the domain (escaped through a wall).
     #[error("particle {particle} at {position:?} is outside the domain: {reason}")]
     OutsideDomain {
@@ -87,7 +113,8 @@ pub enum SolveError {
     /// The iterative solver stopped at `max_iters` without meeting the tolerance.
     #[error(
         "conjugate gradients did not converge in {iters} iterations: \
-         residual {abs_residual:e} (relative {rel_residual:e})"
+         residual {abs_residual:e} (relative {rel_residual:e}); raise solve.max_iters or \
+         loosen solve.rel_tol / solve.abs_tol"
     )]
     NoConvergence {
         /// Iterations run.
@@ -133,6 +160,56 @@ pub struct ConnectivityError {
     pub isolated: usize,
 }
 
+/// A run going unstable, detected by the checks of [`crate::flow::StabilityGuard`] (all off by
+/// default) before it turns into a blow-up: each names the step, the quantity and where.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum StabilityError {
+    /// The time step of step `step` exceeds `factor` times one of the stability limits of
+    /// [`crate::flow::TimeStepLimits`] (CFL, explicit viscous, body force).
+    #[error(
+        "step {step}: time step dt = {dt:e} exceeds the {limit} limit {bound:e} \
+         ({:.3} times it, allowed {factor}); lower limits.dt_fixed / limits.dt_max",
+        dt / bound
+    )]
+    TimeStepTooLarge {
+        /// The step that would have been taken (1 for the first).
+        step: u64,
+        /// The time step.
+        dt: f64,
+        /// Which limit it exceeds (the smallest one).
+        limit: crate::flow::DtLimit,
+        /// The limit's value.
+        bound: f64,
+        /// The allowed multiple of the limit.
+        factor: f64,
+    },
+    /// A monitored quantity left its admissible range after step `step`: kinetic-energy
+    /// growth per step, maximum speed over the reference speed, or the Theorem 4.5 ratio.
+    #[error(
+        "step {step} (t = {time}): {quantity} = {value:e} exceeds {bound:e}; fastest particle \
+         {particle} at {position:?} with |u| = {speed:e} (time step too large, or the flow under-resolved?)"
+    )]
+    BlowUp {
+        /// The step after which the check failed.
+        step: u64,
+        /// Time after that step.
+        time: f64,
+        /// What was checked: `"kinetic energy growth"`, `"max speed / u_ref"` or
+        /// `"Theorem 4.5 ratio"`.
+        quantity: &'static str,
+        /// Its value.
+        value: f64,
+        /// The bound it exceeds.
+        bound: f64,
+        /// The fastest fluid particle (where the blow-up is).
+        particle: usize,
+        /// Its position.
+        position: Vec<f64>,
+        /// Its speed.
+        speed: f64,
+    },
+}
+
 /// The crate's error: one variant per stage.
 #[derive(Debug, Error)]
 pub enum Error {
@@ -145,6 +222,9 @@ pub enum Error {
     /// The Poisson solve failed.
     #[error(transparent)]
     Solve(#[from] SolveError),
+    /// A run became unstable (see [`crate::flow::StabilityGuard`]).
+    #[error(transparent)]
+    Stability(#[from] StabilityError),
     /// Recording or replaying a run failed (or the run was interrupted on request).
     #[error(transparent)]
     Record(#[from] crate::record::RecordError),

@@ -15,10 +15,10 @@
 //!    expansion (Xu et al. 2009), `u_i += (δx_i·∇h) u_i`.
 
 use crate::boundary::{Boundary, VectorKind};
-use crate::error::{Error, InputError};
+use crate::error::{Error, InputError, StabilityError};
 use crate::geometry::number_density_volumes;
 use crate::math::norm2;
-use crate::neighbors::{NeighborConfig, NeighborList};
+use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
 use crate::operators::{grad_diff_into, grad_vec_into};
 use crate::particles::Particles;
 use crate::projection::{ProjectionParams, ProjectionStep, StepReport};
@@ -43,9 +43,11 @@ pub struct TimeStepLimits {
     pub u_ref: f64,
     /// Upper bound on `Δt` (default none).
     pub dt_max: Option<f64>,
-    /// A fixed `Δt`, overriding the limits (it is still checked against them and named when it
-    /// exceeds one).
+    /// A fixed `Δt`, overriding the limits (it is checked against them, and the exceeded limit
+    /// named, when `guard.dt_over_limit` is set).
     pub dt_fixed: Option<f64>,
+    /// Checks that stop a run going unstable with a named error (default: all off).
+    pub guard: StabilityGuard,
 }
 
 impl Default for TimeStepLimits {
@@ -57,8 +59,97 @@ impl Default for TimeStepLimits {
             u_ref: 1.0,
             dt_max: None,
             dt_fixed: None,
+            guard: StabilityGuard::default(),
         }
     }
+}
+
+impl TimeStepLimits {
+    /// Checks the factors (positive and finite), `u_ref` (non-negative, finite), `dt_max` and
+    /// `dt_fixed` (positive and finite when set) and the guard, naming the first bad one.
+    pub fn validate(&self) -> Result<(), InputError> {
+        let bad = |name: &'static str, value: f64, reason: &str| {
+            Err(InputError::Parameter {
+                name,
+                value,
+                reason: reason.into(),
+            })
+        };
+        for (name, v) in [
+            ("limits.cfl", self.cfl),
+            ("limits.visc", self.visc),
+            ("limits.force", self.force),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return bad(name, v, "time-step factors must be positive and finite");
+            }
+        }
+        if !(self.u_ref >= 0.0 && self.u_ref.is_finite()) {
+            return bad(
+                "limits.u_ref",
+                self.u_ref,
+                "the reference speed must be non-negative and finite",
+            );
+        }
+        for (name, v) in [
+            ("limits.dt_max", self.dt_max),
+            ("limits.dt_fixed", self.dt_fixed),
+        ] {
+            if let Some(v) = v {
+                if !(v > 0.0 && v.is_finite()) {
+                    return bad(name, v, "a time step must be positive and finite");
+                }
+            }
+        }
+        let g = &self.guard;
+        if !(g.energy_floor >= 0.0 && g.energy_floor.is_finite()) {
+            return bad(
+                "limits.guard.energy_floor",
+                g.energy_floor,
+                "the energy floor must be non-negative and finite",
+            );
+        }
+        for (name, v) in [
+            ("limits.guard.dt_over_limit", g.dt_over_limit),
+            ("limits.guard.energy_growth", g.energy_growth),
+            ("limits.guard.speed_over_ref", g.speed_over_ref),
+            ("limits.guard.stability_ratio", g.stability_ratio),
+        ] {
+            if let Some(v) = v {
+                if v.is_nan() || v <= 0.0 {
+                    return bad(name, v, "a guard bound must be positive");
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks that turn a run going unstable into a [`StabilityError`] naming the step, the
+/// quantity and the fastest particle, instead of a blow-up (non-finite values, particles
+/// flung through walls, a failed solve). Every check is off by default (`None`).
+///
+/// The time-step check runs before a step and names the exceeded limit (the guard of a fixed
+/// `Δt`); the others run after it, on the step's report. The stress example
+/// (`examples/stress.rs`) measures what each catches.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StabilityGuard {
+    /// Fail before a step whose `Δt` exceeds this multiple of the smallest of the CFL, explicit
+    /// viscous and body-force limits ([`Simulation::dt_bound`]); 1 enforces the limits.
+    pub dt_over_limit: Option<f64>,
+    /// Fail when the kinetic energy grows by more than this factor in one step, checked when
+    /// the previous step's energy exceeds `energy_floor`.
+    pub energy_growth: Option<f64>,
+    /// Energy below which `energy_growth` is not checked (default 0). A flow started from rest
+    /// (the cavity) multiplies its energy by about 4 from the first step to the second: a floor
+    /// of 10⁻³ of `½ρU²|Ω|` lets the spin-up pass.
+    pub energy_floor: f64,
+    /// Fail when the largest fluid speed exceeds this multiple of `limits.u_ref`.
+    pub speed_over_ref: Option<f64>,
+    /// Fail when the Theorem 4.5 ratio of a step exceeds this (the theory bounds it by 1 with
+    /// the mirror source continuation).
+    pub stability_ratio: Option<f64>,
 }
 
 /// Which limit set the time step.
@@ -76,6 +167,18 @@ pub enum DtLimit {
     Max,
     /// A fixed step.
     Fixed,
+}
+
+impl std::fmt::Display for DtLimit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            DtLimit::Cfl => "CFL",
+            DtLimit::Viscous => "explicit viscous",
+            DtLimit::Force => "body-force",
+            DtLimit::Max => "dt_max",
+            DtLimit::Fixed => "fixed",
+        })
+    }
 }
 
 /// Frame of the particles.
@@ -297,6 +400,9 @@ pub struct FlowReport {
     pub advect_seconds: f64,
     /// The projection's report.
     pub projection: StepReport,
+    /// `Δt` over the smallest of the CFL, explicit viscous and body-force limits at the start
+    /// of the step ([`Simulation::dt_bound`]): above 1 the step exceeds a stability limit.
+    pub dt_ratio: f64,
 }
 
 /// A running flow.
@@ -321,6 +427,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     gp: Vec<[f64; D]>,
     stale: bool,
     conv_prev: Option<(Vec<[f64; D]>, f64)>,
+    /// Kinetic energy after the last step (for `guard.energy_growth`).
+    prev_energy: Option<f64>,
 }
 
 impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
@@ -343,6 +451,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .into());
         }
         particles.validate()?;
+        params.limits.validate()?;
+        // a fluid particle outside the domain is an input error, not a later blow-up
+        boundary.confine(&mut particles)?;
         let config = neighbors.with_periodicity(boundary.periodicity());
         let plan = StagePlan::new(
             boundary.has_ghosts(),
@@ -358,6 +469,18 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             boundary.make_ghosts(&mut particles, reach);
         }
         let nl = NeighborList::build(config, &particles.x)?;
+        if nl.n_pairs() == 0 && particles.len() >= 2 {
+            // h ≤ min r_ij: name h and the spacing rather than report every particle isolated
+            if let Some((min_spacing, i, j)) = closest_pair(&particles.x, &config.periodic) {
+                return Err(InputError::RadiusTooSmall {
+                    h: config.h,
+                    min_spacing,
+                    i,
+                    j,
+                }
+                .into());
+            }
+        }
         let mut sim = Simulation {
             particles,
             nl,
@@ -372,6 +495,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             gp: Vec::new(),
             stale: false,
             conv_prev: None,
+            prev_energy: None,
         };
         sim.update_volumes();
         Ok(sim)
@@ -420,7 +544,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
 
     /// The time step for the current state, and the limit that set it.
     pub fn time_step(&self) -> (f64, DtLimit) {
-        let l = &self.params.limits;
+        self.time_step_with(&self.params.limits)
+    }
+
+    fn time_step_with(&self, l: &TimeStepLimits) -> (f64, DtLimit) {
         let h = self.nl.h();
         let p = &self.particles;
         let umax =
@@ -480,6 +607,17 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .reduce(|| 0.0, f64::max)
     }
 
+    /// The smallest of the stability limits on `Δt` for the current state (CFL, explicit
+    /// viscous, body force, as in [`time_step`](Self::time_step) but without `dt_max` and a fixed
+    /// step) and which one it is; `∞` (with [`DtLimit::Max`]) when none applies.
+    pub fn dt_bound(&self) -> (DtLimit, f64) {
+        let mut limits = self.params.limits;
+        limits.dt_max = None;
+        limits.dt_fixed = None;
+        let (dt, which) = self.time_step_with(&limits);
+        (which, dt)
+    }
+
     /// Advances one step.
     ///
     /// Eulerian: predictor (with `−(u·∇h)u`) and projection on the fixed configuration.
@@ -494,7 +632,22 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             self.stale = false;
         }
         let mut neighbors_seconds = t0.elapsed().as_secs_f64();
+        check_state(&self.particles, &self.nl)?;
         let (dt, dt_limit) = self.time_step();
+        let (bound_limit, bound) = self.dt_bound();
+        let dt_ratio = if bound.is_finite() { dt / bound } else { 0.0 };
+        if let Some(factor) = self.params.limits.guard.dt_over_limit {
+            if dt > factor * bound {
+                return Err(StabilityError::TimeStepTooLarge {
+                    step: self.steps + 1,
+                    dt,
+                    limit: bound_limit,
+                    bound,
+                    factor,
+                }
+                .into());
+            }
+        }
         let n = self.particles.len();
         let lagrangian = self.plan.has(Stage::Advection);
         let accel = if self.plan.has(Stage::Convection) {
@@ -588,6 +741,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         self.time += dt;
         self.steps += 1;
+        self.check_guard(&report)?;
         Ok(FlowReport {
             step: self.steps,
             time: self.time,
@@ -597,6 +751,53 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             neighbors_seconds,
             advect_seconds,
             projection: report,
+            dt_ratio,
+        })
+    }
+
+    /// The after-step checks of `limits.guard` on the step's report (see [`StabilityGuard`]).
+    fn check_guard(&mut self, report: &StepReport) -> Result<(), StabilityError> {
+        let g = self.params.limits.guard;
+        let ke = report.kinetic_energy;
+        let prev = self.prev_energy.replace(ke);
+        let u_ref = self.params.limits.u_ref;
+        let failed = match prev {
+            Some(e0)
+                if e0 > 0.0
+                    && e0 >= g.energy_floor
+                    && g.energy_growth.is_some_and(|f| ke > f * e0) =>
+            {
+                Some(("kinetic energy growth", ke / e0, g.energy_growth))
+            }
+            _ => None,
+        }
+        .or_else(|| {
+            g.speed_over_ref
+                .filter(|&f| report.max_speed > f * u_ref)
+                .map(|f| ("max speed / u_ref", report.max_speed / u_ref, Some(f)))
+        })
+        .or_else(|| {
+            g.stability_ratio
+                .filter(|&f| report.stability_ratio > f)
+                .map(|f| ("Theorem 4.5 ratio", report.stability_ratio, Some(f)))
+        });
+        let Some((quantity, value, Some(bound))) = failed else {
+            return Ok(());
+        };
+        let p = &self.particles;
+        let (particle, speed2) = (0..p.len())
+            .filter(|&i| p.role[i].is_fluid())
+            .map(|i| (i, norm2(&p.u[i])))
+            .fold((0, -1.0), |a, b| if b.1 > a.1 { b } else { a });
+        Err(StabilityError::BlowUp {
+            step: self.steps,
+            time: self.time,
+            quantity,
+            value,
+            bound,
+            particle,
+            position: p.x.get(particle).map(|x| x.to_vec()).unwrap_or_default(),
+            speed: speed2.max(0.0).sqrt(),
         })
     }
 
@@ -685,4 +886,51 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         self.boundary.confine(p)?;
         Ok(max_shift)
     }
+}
+
+/// The particle arrays agree in length with each other and the neighbour list, positions,
+/// velocities and pressures of the fluid particles are finite, and their volumes positive and
+/// finite (except particles without neighbours, whose number-density volume is infinite and
+/// which the connectivity check reports). Checked before every step, so that a bad value set
+/// by the caller is named at its particle rather than surfacing later as a failed solve.
+fn check_state<const D: usize>(p: &Particles<D>, nl: &NeighborList<D>) -> Result<(), InputError> {
+    let n = p.x.len();
+    for (field, len) in [
+        ("neighbor list rows", nl.len()),
+        ("u", p.u.len()),
+        ("p", p.p.len()),
+        ("vol", p.vol.len()),
+        ("role", p.role.len()),
+    ] {
+        if len != n {
+            return Err(InputError::LengthMismatch {
+                field,
+                len,
+                expected: n,
+            });
+        }
+    }
+    for i in 0..p.len() {
+        if !p.role[i].is_fluid() {
+            continue;
+        }
+        let field = if !crate::math::is_finite(&p.x[i]) {
+            "position"
+        } else if !crate::math::is_finite(&p.u[i]) {
+            "velocity"
+        } else if !p.p[i].is_finite() {
+            "pressure"
+        } else if !nl.row(i).is_empty()
+            && (p.vol[i].is_nan() || p.vol[i] <= 0.0 || p.vol[i].is_infinite())
+        {
+            return Err(InputError::BadVolume {
+                particle: i,
+                value: p.vol[i],
+            });
+        } else {
+            continue;
+        };
+        return Err(InputError::NonFinite { field, particle: i });
+    }
+    Ok(())
 }

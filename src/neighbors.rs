@@ -479,6 +479,67 @@ impl<const D: usize> NeighborList<D> {
     }
 }
 
+/// The closest pair of particles, `(r, i, j)` with `i < j` (minimum image on periodic axes):
+/// `None` with fewer than two particles or a non-finite position. Found by neighbour searches
+/// of doubling radius from the mean spacing (the smallest pair of the first non-empty search is
+/// the closest overall), so it costs a few searches, not `O(N²)`; used to name the spacing when
+/// `h` is too small for any particle to have a neighbour.
+pub fn closest_pair<const D: usize>(
+    x: &[[f64; D]],
+    periodic: &Periodicity<D>,
+) -> Option<(f64, usize, usize)> {
+    if x.len() < 2 || check_finite(x).is_err() {
+        return None;
+    }
+    let mut lo = [f64::INFINITY; D];
+    let mut hi = [f64::NEG_INFINITY; D];
+    for p in x {
+        for k in 0..D {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let extent = (0..D).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
+    let mut radius = (extent / (x.len() as f64).powf(1.0 / D as f64)).max(f64::MIN_POSITIVE);
+    while radius.is_finite() {
+        let config =
+            NeighborConfig::new(Weight::WendlandC2, radius, 0.0).with_periodicity(*periodic);
+        if config.validate().is_err() {
+            break; // the radius outgrew a period: few particles, check every pair
+        }
+        match NeighborList::build(config, x) {
+            Err(InputError::Coincident { i, j, .. }) => return Some((0.0, i.min(j), i.max(j))),
+            Err(_) => return None,
+            Ok(nl) if nl.n_pairs() > 0 => {
+                let (mut best, mut pair) = (f64::INFINITY, (0, 0));
+                for i in 0..nl.len() {
+                    for k in nl.row(i) {
+                        let j = nl.indices[k] as usize;
+                        if nl.r2[k] < best {
+                            best = nl.r2[k];
+                            pair = (i.min(j), i.max(j));
+                        }
+                    }
+                }
+                return Some((best.sqrt(), pair.0, pair.1));
+            }
+            Ok(_) => radius *= 2.0,
+        }
+    }
+    let mut best = (f64::INFINITY, 0, 1);
+    for i in 0..x.len() {
+        for j in i + 1..x.len() {
+            let mut d: [f64; D] = std::array::from_fn(|k| x[j][k] - x[i][k]);
+            periodic.min_image(&mut d);
+            let r = norm2(&d).sqrt();
+            if r < best.0 {
+                best = (r, i, j);
+            }
+        }
+    }
+    Some(best)
+}
+
 fn check_finite<const D: usize>(x: &[[f64; D]]) -> Result<(), InputError> {
     if let Some(i) = x.par_iter().position_first(|p| !is_finite(p)) {
         return Err(InputError::NonFinite {

@@ -8,7 +8,10 @@
 //! ```
 //!
 //! Errors are printed as one line (with their causes) and the exit status is non-zero; Ctrl-C
-//! stops a run after the current step and finishes the MCAP file (exit status 130).
+//! stops a run after the current step and finishes the MCAP file (exit status 130). A run that
+//! fails finishes its MCAP file too, so every step before the failure reads back. `replay` reads
+//! cut or damaged files with a warning naming the byte offset; `--strict` makes that an error
+//! (exit status 2).
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
@@ -127,6 +130,10 @@ struct ReplayArgs {
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
+    /// Exit with status 2 when the file is cut or damaged (by default the steps that survive
+    /// are read and the damage is a warning).
+    #[arg(long)]
+    strict: bool,
 }
 
 fn main() -> ExitCode {
@@ -170,7 +177,7 @@ fn load_config<T: serde::de::DeserializeOwned>(path: &Path, scene: &str) -> Resu
         }
         v = inner;
     }
-    serde_json::from_value(v)
+    gpm::scene::config_from_value(v)
         .with_context(|| format!("invalid {scene} configuration in {}", path.display()))
 }
 
@@ -221,6 +228,7 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             override_opt(&mut cfg.weight, a.weight);
             override_opt(&mut cfg.h_over_dx, a.h_ratio);
             override_opt(&mut cfg.motion, a.motion);
+            cfg.validate().context("invalid cavity configuration")?;
             let config = serde_json::json!({ "scene": "cavity", "config": &cfg });
             let mut rec = Recorder::create_with(&path, options, &config)?;
             let pb = progress_bar(1000, a.quiet, bar_template);
@@ -250,6 +258,8 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             override_opt(&mut cfg.weight, a.weight);
             override_opt(&mut cfg.h_over_dx, a.h_ratio);
             override_opt(&mut cfg.motion, a.motion);
+            cfg.validate()
+                .context("invalid taylor_green configuration")?;
             let config = serde_json::json!({ "scene": "taylor_green", "config": &cfg });
             let mut rec = Recorder::create_with(&path, options, &config)?;
             let pb = progress_bar(1000, a.quiet, bar_template);
@@ -363,6 +373,10 @@ fn replay(a: ReplayArgs) -> Result<ExitCode> {
         print!("{summary}");
     }
     if let Some(d) = replay.damage() {
+        if a.strict {
+            eprintln!("error: {}: {d}", a.file.display());
+            return Ok(ExitCode::from(2));
+        }
         eprintln!("warning: {}: {d}", a.file.display());
     }
     if let Some(csv) = &a.csv {

@@ -197,46 +197,25 @@ impl CavityConfig {
         if let Err(reason) = self.weight.validate() {
             return bad("weight", f64::NAN, &reason);
         }
-        let l = &self.limits;
-        for (name, v) in [
-            ("limits.cfl", l.cfl),
-            ("limits.visc", l.visc),
-            ("limits.force", l.force),
-        ] {
-            if !(v > 0.0 && v.is_finite()) {
-                return bad(name, v, "time-step factors must be positive and finite");
-            }
-        }
-        if let Some(dt) = l.dt_fixed {
-            if !(dt > 0.0 && dt.is_finite()) {
-                return bad(
-                    "limits.dt_fixed",
-                    dt,
-                    "a fixed time step must be positive and finite",
-                );
-            }
-        }
-        if let Some(s) = &self.shifting {
-            if !(s.coefficient >= 0.0 && s.coefficient.is_finite()) {
-                return bad(
-                    "shifting.coefficient",
-                    s.coefficient,
-                    "must be non-negative",
-                );
-            }
-            if !(s.max_fraction >= 0.0 && s.max_fraction <= 1.0) {
-                return bad("shifting.max_fraction", s.max_fraction, "must be in [0, 1]");
-            }
-        }
         let s = &self.steady;
-        if !(s.interval > 0.0 && s.tol > 0.0 && s.average_window >= 0.0) {
+        if !(s.interval > 0.0 && s.interval.is_finite()) {
+            return bad("steady.interval", s.interval, "must be positive and finite");
+        }
+        if s.tol.is_nan() || s.tol <= 0.0 {
+            return bad("steady.tol", s.tol, "must be positive");
+        }
+        if !(s.average_window >= 0.0 && s.average_window.is_finite()) {
             return bad(
-                "steady.interval",
-                s.interval,
-                "interval and tol must be positive, average_window non-negative",
+                "steady.average_window",
+                s.average_window,
+                "must be non-negative and finite",
             );
         }
-        Ok(())
+        if !(0.0..=1.0).contains(&self.viscous_theta) {
+            return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
+        }
+        self.limits.validate()?;
+        super::validate_common(&self.solve, self.shifting.as_ref())
     }
 
     /// Particle spacing `1/n`.

@@ -124,7 +124,21 @@ impl TaylorGreenConfig {
         if !(self.amplitude.is_finite() && self.amplitude != 0.0) {
             return bad("amplitude", self.amplitude, "must be finite and non-zero");
         }
-        Ok(())
+        if !(self.skin_over_h >= 0.0 && self.skin_over_h <= 2.0) {
+            return bad(
+                "skin_over_h",
+                self.skin_over_h,
+                "the skin must be in [0, 2] h",
+            );
+        }
+        if let Err(reason) = self.weight.validate() {
+            return bad("weight", f64::NAN, &reason);
+        }
+        if !(0.0..=1.0).contains(&self.viscous_theta) {
+            return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
+        }
+        self.limits.validate()?;
+        super::validate_common(&self.solve, self.shifting.as_ref())
     }
 }
 
