@@ -55,7 +55,22 @@ impl<const D: usize> Periodicity<D> {
         for k in 0..D {
             let l = self.len[k];
             if l > 0.0 {
-                dx[k] -= l * (dx[k] / l).round();
+                let v = dx[k];
+                // one correction covers |v| ≤ 1.5 l (positions within a period of each other);
+                // `round` (a libm call here) only for the rare larger offsets
+                if v > 0.5 * l {
+                    dx[k] = if v <= 1.5 * l {
+                        v - l
+                    } else {
+                        v - l * (v / l).round()
+                    };
+                } else if v < -0.5 * l {
+                    dx[k] = if v >= -1.5 * l {
+                        v + l
+                    } else {
+                        v - l * (v / l).round()
+                    };
+                }
             }
         }
     }
@@ -173,6 +188,7 @@ pub struct NeighborList<const D: usize> {
     pub wr2: Vec<f64>,
     cand_offsets: Vec<usize>,
     cand_indices: Vec<u32>,
+    cand_r2: Vec<f64>,
     x_ref: Vec<[f64; D]>,
     epoch: u64,
     rebuilds: u64,
@@ -194,6 +210,7 @@ impl<const D: usize> NeighborList<D> {
             wr2: Vec::new(),
             cand_offsets: vec![0],
             cand_indices: Vec::new(),
+            cand_r2: Vec::new(),
             x_ref: Vec::new(),
             epoch: 0,
             rebuilds: 0,
@@ -403,17 +420,33 @@ impl<const D: usize> NeighborList<D> {
             per.min_image(&mut d);
             d
         };
-        // pass 1: counts
-        let counts: Vec<usize> = (0..n)
+        // pass 1: r² of every candidate (kept for pass 2) and the counts per row
+        let mut cand_r2 = std::mem::take(&mut self.cand_r2);
+        cand_r2.resize(ci.len(), 0.0);
+        const RCHUNK: usize = 512;
+        let rbounds: Vec<usize> = (0..=n.div_ceil(RCHUNK))
+            .map(|c| co[(c * RCHUNK).min(n)])
+            .collect();
+        let counts: Vec<Vec<usize>> = split_by(&mut cand_r2, &rbounds)
             .into_par_iter()
-            .with_min_len(256)
-            .map(|i| {
-                ci[co[i]..co[i + 1]]
-                    .iter()
-                    .filter(|&&j| norm2(&disp(i, j as usize)) < h2)
-                    .count()
+            .enumerate()
+            .map(|(c, r2s)| {
+                let base = co[(c * RCHUNK).min(n)];
+                let rows = c * RCHUNK..((c + 1) * RCHUNK).min(n);
+                let mut out = Vec::with_capacity(rows.len());
+                for i in rows {
+                    let mut count = 0;
+                    for k in co[i]..co[i + 1] {
+                        let rr = norm2(&disp(i, ci[k] as usize));
+                        r2s[k - base] = rr;
+                        count += (rr < h2) as usize;
+                    }
+                    out.push(count);
+                }
+                out
             })
             .collect();
+        let counts: Vec<usize> = counts.into_iter().flatten().collect();
         let mut offsets = Vec::with_capacity(n + 1);
         offsets.push(0usize);
         for c in &counts {
@@ -447,10 +480,11 @@ impl<const D: usize> NeighborList<D> {
                 let mut k = 0;
                 let mut bad = None;
                 for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                    for &j in &ci[co[i]..co[i + 1]] {
-                        let d = disp(i, j as usize);
-                        let rr = norm2(&d);
+                    for kc in co[i]..co[i + 1] {
+                        let rr = cand_r2[kc];
                         if rr < h2 {
+                            let j = ci[kc];
+                            let d = disp(i, j as usize);
                             if !(rr > 0.0) && bad.is_none() {
                                 bad = Some((i, j as usize));
                             }
@@ -468,6 +502,7 @@ impl<const D: usize> NeighborList<D> {
             })
             .reduce(|| None, |a, b| a.or(b));
         self.offsets = offsets;
+        self.cand_r2 = cand_r2;
         if let Some((i, j)) = coincident {
             return Err(InputError::Coincident {
                 i,
