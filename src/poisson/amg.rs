@@ -378,7 +378,7 @@ fn symmetrize(a: &mut CsrMatrix) {
 #[serde(deny_unknown_fields, default)]
 pub struct AmgParams {
     /// Strength threshold `θ`: `j` is a strong neighbour of `i` when
-    /// `|a_ij| ≥ θ √(a_ii a_jj)` (default 0.08).
+    /// `|a_ij| ≥ θ √(a_ii a_jj)` (default 0.04).
     pub theta: f64,
     /// Stop coarsening at this many unknowns; the last level is factorised densely
     /// (default 600).
@@ -397,12 +397,19 @@ pub struct AmgParams {
     /// Largest coarsest level factorised densely (default 3000); a larger one (coarsening
     /// stagnated) is smoothed instead.
     pub dense_limit: usize,
+    /// Levels (finest first) with the additive correction `B = S + P B_c Pᵀ` instead of the
+    /// multiplicative V-cycle (default 0).
+    pub additive_levels: usize,
+    /// Smooth the prolongator with the filtered matrix (strong entries only, weak ones lumped
+    /// onto the diagonal so that the near-null vector is still reproduced): sparser `P` and
+    /// coarse operators (default true).
+    pub filter: bool,
 }
 
 impl Default for AmgParams {
     fn default() -> Self {
         AmgParams {
-            theta: 0.08,
+            theta: 0.04,
             coarse_size: 600,
             max_levels: 12,
             sweeps: 1,
@@ -410,6 +417,8 @@ impl Default for AmgParams {
             prolongator_weight: 4.0 / 3.0,
             lanczos_steps: 8,
             dense_limit: 3000,
+            additive_levels: 0,
+            filter: true,
         }
     }
 }
@@ -663,48 +672,101 @@ fn inv_diagonal(a: CsrRef<'_>) -> Vec<f64> {
         .collect()
 }
 
+/// Strong neighbours of every row with their (signed) entries `a_ij`.
+fn strength(a: CsrRef<'_>, diag: &[f64], theta: f64) -> RowBlocks {
+    let n = a.rows();
+    let blocks: Vec<Block> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|ch| {
+            let lo = ch * CHUNK;
+            let hi = ((ch + 1) * CHUNK).min(n);
+            let mut offsets = Vec::with_capacity(hi - lo + 1);
+            let mut cols = Vec::with_capacity(a.offsets[hi] - a.offsets[lo]);
+            let mut vals = Vec::with_capacity(a.offsets[hi] - a.offsets[lo]);
+            offsets.push(0u32);
+            for i in lo..hi {
+                if diag[i] > 0.0 {
+                    for k in a.offsets[i]..a.offsets[i + 1] {
+                        let j = a.cols[k] as usize;
+                        let v = a.values[k];
+                        if j != i
+                            && diag[j] > 0.0
+                            && v != 0.0
+                            && v.abs() >= theta * (diag[i] * diag[j]).sqrt()
+                        {
+                            cols.push(j as u32);
+                            vals.push(v);
+                        }
+                    }
+                }
+                offsets.push(cols.len() as u32);
+            }
+            Block {
+                offsets,
+                cols,
+                vals,
+            }
+        })
+        .collect();
+    RowBlocks { blocks }
+}
+
+/// The filtered matrix `A_F`: the diagonal and the strong entries of `A`, the weak entries
+/// lumped onto the diagonal so that `A_F b = A b` for the near-null vector `b` (the constants
+/// on the finest level). Used to smooth the prolongator: `P` then reaches only the aggregates
+/// of strong neighbours (sparser `P`, cheaper Galerkin products) and still reproduces `b`.
+fn filtered(a: CsrRef<'_>, strong: &RowBlocks, diag: &[f64], b: &[f64]) -> CsrMatrix {
+    let n = a.rows();
+    let blocks: Vec<Block> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|ch| {
+            let lo = ch * CHUNK;
+            let hi = ((ch + 1) * CHUNK).min(n);
+            let mut offsets = Vec::with_capacity(hi - lo + 1);
+            let mut cols = Vec::new();
+            let mut vals = Vec::new();
+            offsets.push(0u32);
+            for i in lo..hi {
+                let (sc, sv) = strong.row(i);
+                // A b over all entries minus the strong part: what the diagonal must absorb
+                let mut weak = 0.0;
+                let mut strong_sum = 0.0;
+                for k in a.offsets[i]..a.offsets[i + 1] {
+                    let j = a.cols[k] as usize;
+                    if j != i {
+                        weak += a.values[k] * b[j];
+                    }
+                }
+                for (&j, &v) in sc.iter().zip(sv) {
+                    strong_sum += v * b[j as usize];
+                }
+                weak -= strong_sum;
+                let lumped = if b[i] != 0.0 {
+                    diag[i] + weak / b[i]
+                } else {
+                    diag[i]
+                };
+                cols.push(i as u32);
+                vals.push(if lumped > 0.0 { lumped } else { diag[i] });
+                cols.extend_from_slice(sc);
+                vals.extend_from_slice(sv);
+                offsets.push(cols.len() as u32);
+            }
+            Block {
+                offsets,
+                cols,
+                vals,
+            }
+        })
+        .collect();
+    RowBlocks { blocks }.into_csr(n)
+}
+
 /// Greedy aggregation on the strength graph; `u32::MAX` for rows left out (zero diagonal).
-fn aggregate(a: CsrRef<'_>, diag: &[f64], theta: f64) -> (Vec<u32>, usize) {
+fn aggregate(a: CsrRef<'_>, diag: &[f64], strong: &RowBlocks) -> (Vec<u32>, usize) {
     const FREE: u32 = u32::MAX - 1;
     const OUT: u32 = u32::MAX;
     let n = a.rows();
-    // strong neighbours (with |a_ij|), row blocks in parallel
-    let strong = {
-        let blocks: Vec<Block> = (0..n.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|ch| {
-                let lo = ch * CHUNK;
-                let hi = ((ch + 1) * CHUNK).min(n);
-                let mut offsets = Vec::with_capacity(hi - lo + 1);
-                let mut cols = Vec::with_capacity(a.offsets[hi] - a.offsets[lo]);
-                let mut vals = Vec::with_capacity(a.offsets[hi] - a.offsets[lo]);
-                offsets.push(0u32);
-                for i in lo..hi {
-                    if diag[i] > 0.0 {
-                        for k in a.offsets[i]..a.offsets[i + 1] {
-                            let j = a.cols[k] as usize;
-                            let v = a.values[k].abs();
-                            if j != i
-                                && diag[j] > 0.0
-                                && v > 0.0
-                                && v >= theta * (diag[i] * diag[j]).sqrt()
-                            {
-                                cols.push(j as u32);
-                                vals.push(v);
-                            }
-                        }
-                    }
-                    offsets.push(cols.len() as u32);
-                }
-                Block {
-                    offsets,
-                    cols,
-                    vals,
-                }
-            })
-            .collect();
-        RowBlocks { blocks }
-    };
     let mut agg: Vec<u32> = diag
         .iter()
         .map(|&d| if d > 0.0 { FREE } else { OUT })
@@ -726,7 +788,7 @@ fn aggregate(a: CsrRef<'_>, diag: &[f64], theta: f64) -> (Vec<u32>, usize) {
     }
     // pass 2: join the pass-1 aggregate of the strongest strong neighbour (every node left
     // with a strong neighbour has an aggregated one: otherwise pass 1 would have made it a root)
-        let pass1 = agg.clone();
+    let pass1 = agg.clone();
     for (i, ai) in agg.iter_mut().enumerate() {
         if *ai != FREE {
             continue;
@@ -734,12 +796,13 @@ fn aggregate(a: CsrRef<'_>, diag: &[f64], theta: f64) -> (Vec<u32>, usize) {
         let (si, sv) = strong.row(i);
         let mut best: Option<(f64, u32)> = None;
         for (&j, &w) in si.iter().zip(sv) {
+            let w = w.abs();
             let g = pass1[j as usize];
             if g < FREE && best.is_none_or(|(bw, _)| w > bw) {
                 best = Some((w, g));
             }
         }
-                if let Some((_, g)) = best {
+        if let Some((_, g)) = best {
             *ai = g;
         }
     }
@@ -844,8 +907,26 @@ fn smoothed_prolongator(
 
 /// `Pᵀ A P`, symmetrised.
 fn galerkin(a: CsrRef<'_>, tr: &Transfer) -> CsrMatrix {
+    let t = Instant::now();
     let ap = spgemm(a, &tr.p.view(), tr.p.ncols, false);
+    let t1 = t.elapsed().as_secs_f64();
     let mut c = spgemm(tr.pt.view(), &ap, tr.p.ncols, true).into_csr(tr.p.ncols);
+    if std::env::var_os("GPM_AMG_TRACE").is_some() {
+        let f1: usize = (0..a.rows())
+            .map(|i| {
+                (a.offsets[i]..a.offsets[i + 1])
+                    .map(|k| {
+                        tr.p.offsets[a.cols[k] as usize + 1] - tr.p.offsets[a.cols[k] as usize]
+                    })
+                    .sum::<usize>()
+            })
+            .sum();
+        let apn: usize = ap.blocks.iter().map(|b| b.cols.len()).sum();
+        eprintln!(
+            "AP {t1:.3} s ({f1} flops, nnz {apn}), PtAP {:.3} s",
+            t.elapsed().as_secs_f64() - t1
+        );
+    }
     drop(ap);
     symmetrize(&mut c);
     c
@@ -983,7 +1064,8 @@ impl Amg {
                 .iter()
                 .map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 })
                 .collect();
-            let (agg, n_agg) = aggregate(cur, &diag, params.theta);
+            let strong = strength(cur, &diag, params.theta);
+            let (agg, n_agg) = aggregate(cur, &diag, &strong);
             stats.times.aggregate += lap(&mut clock);
             if n_agg == 0 || n_agg as f64 > 0.9 * nl as f64 {
                 break;
@@ -991,15 +1073,30 @@ impl Amg {
             let rho = spectral_radius(cur, &inv_diag, params.lanczos_steps);
             stats.times.spectral += lap(&mut clock);
             let (t, bc) = tentative(&near_null, &agg, n_agg);
+            let p = if params.filter {
+                let af = filtered(cur, &strong, &diag, &near_null);
+                let inv_f = inv_diagonal(af.view());
+                let rho_f = spectral_radius(af.view(), &inv_f, params.lanczos_steps);
+                smoothed_prolongator(
+                    af.view(),
+                    &inv_f,
+                    &agg,
+                    &t,
+                    n_agg,
+                    params.prolongator_weight / rho_f,
+                )
+            } else {
+                smoothed_prolongator(
+                    cur,
+                    &inv_diag,
+                    &agg,
+                    &t,
+                    n_agg,
+                    params.prolongator_weight / rho,
+                )
+            };
+            drop(strong);
             near_null = bc;
-            let p = smoothed_prolongator(
-                cur,
-                &inv_diag,
-                &agg,
-                &t,
-                n_agg,
-                params.prolongator_weight / rho,
-            );
             stats.times.prolongator += lap(&mut clock);
             let pt = p.transpose();
             let tr = Transfer { p, pt };
@@ -1141,6 +1238,20 @@ impl Amg {
             };
             let al = if l == 0 { a } else { self.ops[l - 1].view() };
             let s = &self.smoothers[l].s;
+            if l < self.params.additive_levels {
+                xl.par_iter_mut()
+                    .zip(bl.par_iter().zip(s.par_iter()))
+                    .with_min_len(MIN_LEN)
+                    .for_each(|(x, (b, s))| *x = s * b);
+                let pt = self.transfers[l].pt.view();
+                tail[0]
+                    .b
+                    .par_iter_mut()
+                    .with_min_len(256)
+                    .enumerate()
+                    .for_each(|(c, bc)| *bc = pt.row_dot(c, bl));
+                continue;
+            }
             // x = S b and r = b − A S b in one pass
             w.r.par_iter_mut()
                 .zip(xl.par_iter_mut())
@@ -1190,6 +1301,9 @@ impl Amg {
                 .with_min_len(MIN_LEN)
                 .enumerate()
                 .for_each(|(i, xi)| *xi += p.row_dot(i, xc));
+            if l < self.params.additive_levels {
+                continue;
+            }
             let s = &self.smoothers[l].s;
             for _ in 0..sweeps {
                 jacobi_sweep(al, s, bl, xl, &mut w.r);
@@ -1327,6 +1441,11 @@ impl AmgCache {
     /// The current hierarchy, if any.
     pub fn hierarchy(&self) -> Option<&Amg> {
         self.amg.as_ref()
+    }
+
+    /// The current hierarchy, mutably (to apply its V-cycle directly).
+    pub fn hierarchy_mut(&mut self) -> Option<&mut Amg> {
+        self.amg.as_mut()
     }
 
     /// Makes the hierarchy ready for the matrix of `a` and says what that took.
