@@ -78,9 +78,11 @@ fn peak_mb() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()))
+            s.lines().find(|l| l.starts_with("VmHWM:")).and_then(|l| {
+                l.split_whitespace()
+                    .nth(1)
+                    .and_then(|v| v.parse::<f64>().ok())
+            })
         })
         .map(|kb| kb / 1024.0)
         .unwrap_or(f64::NAN)
@@ -129,7 +131,11 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
             dt_fixed: Some(0.1 * dx),
             ..Default::default()
         },
-        motion: if moving { Motion::Lagrangian } else { Motion::Eulerian },
+        motion: if moving {
+            Motion::Lagrangian
+        } else {
+            Motion::Eulerian
+        },
         integrator: Integrator::Ab2,
         shifting: None,
         volumes: VolumeRule::NumberDensity,
@@ -137,7 +143,12 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     };
     let skin = if c.reuse { 0.3 } else { 0.0 };
     let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, skin);
-    Ok(Simulation::new(p, PeriodicBox { periodic }, config, params)?)
+    Ok(Simulation::new(
+        p,
+        PeriodicBox { periodic },
+        config,
+        params,
+    )?)
 }
 
 /// Memory bandwidth of a parallel copy of `len` doubles (GB/s, read + write).
@@ -161,7 +172,12 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
     let mut sim = periodic_sim::<D>(c)?;
     let dir = std::env::temp_dir().join(format!("gpm_bench_{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let mut rec = Recorder::create(dir.join("bench.mcap"), RecordLevel::Diagnostics, 10, &serde_json::json!({"bench": c}))?;
+    let mut rec = Recorder::create(
+        dir.join("bench.mcap"),
+        RecordLevel::Diagnostics,
+        10,
+        &serde_json::json!({"bench": c}),
+    )?;
     let names = [
         "neighbors",
         "operators",
@@ -197,7 +213,8 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
             + v.symbolic_seconds
             + v.numeric_seconds
             + v.solve_seconds;
-        let viscous_total = v.assemble_seconds + v.symbolic_seconds + v.numeric_seconds + v.solve_seconds;
+        let viscous_total =
+            v.assemble_seconds + v.symbolic_seconds + v.numeric_seconds + v.solve_seconds;
         let operators = (p.timings.predictor - viscous_total).max(0.0) + p.timings.source;
         let stages = [
             r.neighbors_seconds,
@@ -239,7 +256,11 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
     let copy_gbs = stream_copy(1 << 25);
     Ok(Outcome {
         case: c.clone(),
-        stages: names.iter().zip(acc).map(|(n, s)| (n.to_string(), s / m)).collect(),
+        stages: names
+            .iter()
+            .zip(acc)
+            .map(|(n, s)| (n.to_string(), s / m))
+            .collect(),
         total: total / m,
         peak_mb: peak,
         poisson_iters: iters / m,
@@ -306,7 +327,13 @@ fn main_inner(a: Args) -> Result<()> {
         cases.push(case(2, 10_000, "fixed", SolverKind::Auto, true, 1, 10));
         cases.push(case(3, 10_000, "fixed", SolverKind::Auto, true, 2, 5));
     } else {
-        for (d, n, steps) in [(2, 10_000, 20), (2, 100_000, 10), (2, 1_000_000, 4), (3, 10_000, 10), (3, 100_000, 4)] {
+        for (d, n, steps) in [
+            (2, 10_000, 20),
+            (2, 100_000, 10),
+            (2, 1_000_000, 4),
+            (3, 10_000, 10),
+            (3, 100_000, 4),
+        ] {
             for frame in ["fixed", "moving"] {
                 cases.push(case(d, n, frame, SolverKind::Auto, true, 2, steps));
             }
@@ -322,7 +349,10 @@ fn main_inner(a: Args) -> Result<()> {
         }
     }
     let mut csv = std::fs::File::create(a.out.join("steps.csv"))?;
-    writeln!(csv, "d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step,peak_mb")?;
+    writeln!(
+        csv,
+        "d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step,peak_mb"
+    )?;
     println!(
         "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} | {:>9} {:>7} {:>6} {:>6}",
         "d", "N", "frame", "solver", "reuse", "thr", "neigh", "ops", "assem", "solve", "corr", "diag", "rec", "other", "total ms", "MB", "iters", "GB/s"
@@ -341,7 +371,15 @@ fn main_inner(a: Args) -> Result<()> {
                     writeln!(
                         csv,
                         "{},{},{},{},{},{},{},{:.6e},{:.1}",
-                        c.d, c.n_particles, c.frame, c.solver, c.reuse, c.threads, stage, s, o.peak_mb
+                        c.d,
+                        c.n_particles,
+                        c.frame,
+                        c.solver,
+                        c.reuse,
+                        c.threads,
+                        stage,
+                        s,
+                        o.peak_mb
                     )?;
                 }
                 writeln!(
@@ -349,7 +387,12 @@ fn main_inner(a: Args) -> Result<()> {
                     "{},{},{},{},{},{},total,{:.6e},{:.1}",
                     c.d, c.n_particles, c.frame, c.solver, c.reuse, c.threads, o.total, o.peak_mb
                 )?;
-                if c.d == 2 && c.n_particles == 10_000 && c.reuse && c.threads == 2 && c.frame == "fixed" {
+                if c.d == 2
+                    && c.n_particles == 10_000
+                    && c.reuse
+                    && c.threads == 2
+                    && c.frame == "fixed"
+                {
                     println!(
                         "   SpMV {:.1} GB/s vs stream copy {:.1} GB/s in the same process ({:.0} %)",
                         o.spmv_gbs,

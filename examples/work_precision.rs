@@ -46,11 +46,36 @@ fn main_inner(a: Args) -> Result<()> {
     let mut csv = std::fs::File::create(a.out.join("work_precision.csv"))?;
     writeln!(csv, "case,variant,n,particles,steps,wall_seconds,error")?;
     let variants = [
-        Variant { name: "wendland2 h=3dx (default)", weight: Weight::WendlandC2, h_over_dx: 3.0, explicit: false },
-        Variant { name: "cubic h=3dx", weight: Weight::CubicSpline, h_over_dx: 3.0, explicit: false },
-        Variant { name: "wendland2 h=2.5dx", weight: Weight::WendlandC2, h_over_dx: 2.5, explicit: false },
-        Variant { name: "wendland2 h=4dx", weight: Weight::WendlandC2, h_over_dx: 4.0, explicit: false },
-        Variant { name: "explicit Euler viscosity", weight: Weight::WendlandC2, h_over_dx: 3.0, explicit: true },
+        Variant {
+            name: "wendland2 h=3dx (default)",
+            weight: Weight::WendlandC2,
+            h_over_dx: 3.0,
+            explicit: false,
+        },
+        Variant {
+            name: "cubic h=3dx",
+            weight: Weight::CubicSpline,
+            h_over_dx: 3.0,
+            explicit: false,
+        },
+        Variant {
+            name: "wendland2 h=2.5dx",
+            weight: Weight::WendlandC2,
+            h_over_dx: 2.5,
+            explicit: false,
+        },
+        Variant {
+            name: "wendland2 h=4dx",
+            weight: Weight::WendlandC2,
+            h_over_dx: 4.0,
+            explicit: false,
+        },
+        Variant {
+            name: "explicit Euler viscosity",
+            weight: Weight::WendlandC2,
+            h_over_dx: 3.0,
+            explicit: true,
+        },
     ];
     let (cav_ns, tg_ns): (Vec<usize>, Vec<usize>) = if a.quick {
         (vec![16, 24, 32], vec![16, 32])
@@ -58,7 +83,10 @@ fn main_inner(a: Args) -> Result<()> {
         (vec![16, 24, 32, 50, 70, 100], vec![16, 32, 64, 128])
     };
     let mut cav_series = Vec::new();
-    println!("{:<10} {:<28} {:>5} {:>8} {:>7} {:>10} {:>10}", "case", "variant", "n", "particles", "steps", "wall s", "error");
+    println!(
+        "{:<10} {:<28} {:>5} {:>8} {:>7} {:>10} {:>10}",
+        "case", "variant", "n", "particles", "steps", "wall s", "error"
+    );
     for v in &variants {
         let mut pts = Vec::new();
         for &n in &cav_ns {
@@ -75,14 +103,19 @@ fn main_inner(a: Args) -> Result<()> {
                 cfg.viscous_theta = 0.0;
                 cfg.integrator = Integrator::Euler;
             }
-            let r = cavity::run(&cfg, |_, _| Ok(())).with_context(|| format!("cavity {} n {n}", v.name))?;
+            let r = cavity::run(&cfg, |_, _| Ok(()))
+                .with_context(|| format!("cavity {} n {n}", v.name))?;
             let g = r.ghia.expect("Re 100 table");
             let err = 0.5 * (g.rms_u + g.rms_v);
             println!(
                 "{:<10} {:<28} {:>5} {:>8} {:>7} {:>10.2} {:>10.3e}",
                 "cavity", v.name, n, r.particles, r.steps, r.wall_seconds, err
             );
-            writeln!(csv, "cavity,{},{n},{},{},{},{}", v.name, r.particles, r.steps, r.wall_seconds, err)?;
+            writeln!(
+                csv,
+                "cavity,{},{n},{},{},{},{}",
+                v.name, r.particles, r.steps, r.wall_seconds, err
+            )?;
             pts.push((r.wall_seconds, err));
         }
         cav_series.push(Series::line_points(v.name, pts));
@@ -106,9 +139,23 @@ fn main_inner(a: Args) -> Result<()> {
             let err = r.errors.l1_velocity_error;
             println!(
                 "{:<10} {:<28} {:>5} {:>8} {:>7} {:>10.2} {:>10.3e}",
-                "tg", v.name, n, n * n, r.steps, r.wall_seconds, err
+                "tg",
+                v.name,
+                n,
+                n * n,
+                r.steps,
+                r.wall_seconds,
+                err
             );
-            writeln!(csv, "taylor_green,{},{n},{},{},{},{}", v.name, n * n, r.steps, r.wall_seconds, err)?;
+            writeln!(
+                csv,
+                "taylor_green,{},{n},{},{},{},{}",
+                v.name,
+                n * n,
+                r.steps,
+                r.wall_seconds,
+                err
+            )?;
             pts.push((r.wall_seconds, err));
         }
         tg_series.push(Series::line_points(v.name, pts));
@@ -140,7 +187,10 @@ fn main_inner(a: Args) -> Result<()> {
             ),
         ],
     )?;
-    println!("wrote {} and work_precision.png", a.out.join("work_precision.csv").display());
+    println!(
+        "wrote {} and work_precision.png",
+        a.out.join("work_precision.csv").display()
+    );
     Ok(())
 }
 

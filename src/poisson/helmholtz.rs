@@ -40,7 +40,7 @@ impl HelmholtzSolver {
 
     /// Solves `u_i − c Δh u_i = r_i` at the fluid particles for each component. `ghost_rule(j)`
     /// gives `(σ, b)` of ghost `j`; Dirichlet particles keep the values in `u`. Writes the fluid
-        /// rows of `u` (other rows are left as they are).
+    /// rows of `u` (other rows are left as they are).
     // `d` runs over the components of each `u[p]`
     #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
     pub fn solve<const D: usize>(

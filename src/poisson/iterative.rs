@@ -149,7 +149,7 @@ pub fn pcg_with<M: Preconditioner + ?Sized>(
             .with_min_len(MIN_LEN)
             .map(|(a, b)| a * b)
             .sum();
-                if rz_new.is_nan() || rz_new <= 0.0 {
+        if rz_new.is_nan() || rz_new <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "preconditioned conjugate gradients: r·Br = {rz_new:e} ≤ 0 at iteration {iters} (preconditioner not positive definite)"
             )));
@@ -161,7 +161,7 @@ pub fn pcg_with<M: Preconditioner + ?Sized>(
             .with_min_len(MIN_LEN)
             .for_each(|(pi, zi)| *pi = zi + beta * *pi);
         let pq = matvec_dot(a, &p, &mut q);
-                if pq.is_nan() || pq <= 0.0 {
+        if pq.is_nan() || pq <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "conjugate gradients: p·Kp = {pq:e} ≤ 0 at iteration {iters} (matrix not positive definite on the search direction)"
             )));
@@ -238,7 +238,7 @@ pub fn pcg(
         }
         // q = K p and p·q in one pass
         let pq = matvec_dot(a, &p, &mut q);
-                if pq.is_nan() || pq <= 0.0 {
+        if pq.is_nan() || pq <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "conjugate gradients: p·Kp = {pq:e} ≤ 0 at iteration {iters} (matrix not positive definite on the search direction)"
             )));
