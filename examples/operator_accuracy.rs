@@ -30,8 +30,11 @@
 //!   File: `projection.csv`.
 //! * `flows` — the step driven by this example (a re-implementation of `Simulation::advance` in
 //!   the Lagrangian frame from the public pieces, checked to reproduce it bit for bit) with the
-//!   variants A, B, C, E: Taylor–Green step by step and to a short end time, and the lid-driven
-//!   cavity (Re 100) against Ghia et al. Files: `tg_steps.csv`, `flows.csv`.
+//!   variants A, B, C, E: Taylor–Green step by step and at a fixed time against the CFL number,
+//!   and the lid-driven cavity (Re 100) against Ghia et al. Files: `tg_steps.csv`, `flows.csv`.
+//! * `weights` — the product's setting (number-density volumes, fixed `h/Δx`): operator errors on
+//!   a lattice and on a Taylor–Green-advected lattice for several weights and `h/Δx`, and the
+//!   default (Eulerian) cavity at Re 100 against Ghia et al. with its run time. File: `weights.csv`.
 //!
 //! Timings are wall-clock on a shared 2-core machine: compare them within one run only.
 
@@ -61,7 +64,7 @@ struct Args {
     /// CI-sized run (a few seconds).
     #[arg(long)]
     quick: bool,
-    /// Parts to run: imoto, sph, projection, flows, all (comma-separated).
+    /// Parts to run: imoto, sph, projection, flows, weights, all (comma-separated).
     #[arg(long, default_value = "all")]
     part: String,
     /// Output directory (default results/operator_accuracy, or ..._quick with --quick).
@@ -102,7 +105,7 @@ fn main() -> Result<()> {
         .split(',')
         .map(|s| s.trim().to_ascii_lowercase())
         .collect();
-    let known = ["imoto", "sph", "projection", "flows", "all"];
+    let known = ["imoto", "sph", "projection", "flows", "weights", "all"];
     if let Some(p) = parts.iter().find(|p| !known.contains(&p.as_str())) {
         bail!("unknown part '{p}': expected one of {known:?}");
     }
@@ -119,6 +122,9 @@ fn main() -> Result<()> {
     }
     if has("flows") {
         flows::run(&args, &out)?;
+    }
+    if has("weights") {
+        weights::run(&args, &out)?;
     }
 
     println!(
@@ -849,13 +855,13 @@ mod projection {
     const TWO_PI: f64 = 2.0 * PI;
 
     /// Divergence-free Taylor–Green field.
-    fn u_df(x: &[f64; 2]) -> [f64; 2] {
+    pub fn u_df(x: &[f64; 2]) -> [f64; 2] {
         let (s0, c0) = (TWO_PI * x[0]).sin_cos();
         let (s1, c1) = (TWO_PI * x[1]).sin_cos();
         [-c0 * s1, s0 * c1]
     }
     /// The gradient part's potential `q = sin 2πx sin 4πy / (2π)`, its gradient and Laplacian.
-    fn q(x: &[f64; 2]) -> (f64, [f64; 2], f64) {
+    pub fn q(x: &[f64; 2]) -> (f64, [f64; 2], f64) {
         let (s0, c0) = (TWO_PI * x[0]).sin_cos();
         let (s1, c1) = (2.0 * TWO_PI * x[1]).sin_cos();
         let v = s0 * s1 / TWO_PI;
@@ -868,7 +874,7 @@ mod projection {
 
     /// A lattice advected for time `t` by the steady Taylor–Green field (RK4, 50 steps), wrapped
     /// into the unit box: a Lagrangian-deformed configuration.
-    fn advected(n: usize, t: f64) -> Vec<[f64; 2]> {
+    pub fn advected(n: usize, t: f64) -> Vec<[f64; 2]> {
         let dx = 1.0 / n as f64;
         let per = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
         let steps = 50;
@@ -1271,7 +1277,7 @@ mod flows {
     use gpm::flow::{Stage, VolumeRule};
     use gpm::projection::Scheme;
     use gpm::scene::cavity::{build, ghia_errors, sample_positions, sample_profiles, CavityConfig};
-    use gpm::scene::taylor_green::{self, TaylorGreenConfig, TaylorGreenErrors};
+    use gpm::scene::taylor_green::{self, TaylorGreenConfig};
 
     type Sim<B> = Simulation<2, B>;
 
@@ -1744,38 +1750,6 @@ mod flows {
         })
     }
 
-    /// A Lagrangian Taylor–Green run to `t_end` with the example's loop: errors against the exact
-    /// solution, steps, wall and extra seconds, or the failure.
-    fn run_tg(
-        cfg: &TaylorGreenConfig,
-        v: FlowVariant,
-    ) -> Result<(TaylorGreenErrors, u64, f64, f64, f64, Option<String>)> {
-        let start = Instant::now();
-        let mut sim = taylor_green::build(cfg)?;
-        let mut st = Stepper::new(v.1, v.2);
-        let mut failed = None;
-        while sim.time < cfg.t_end - 1e-12 {
-            let (dt, _) = sim.time_step();
-            let remaining = cfg.t_end - sim.time;
-            if dt > remaining {
-                sim.params.limits.dt_fixed = Some(remaining);
-            }
-            if let Err(e) = st.advance(&mut sim) {
-                failed = Some(e.to_string());
-                break;
-            }
-        }
-        let e = taylor_green::errors(&sim, cfg.re, cfg.amplitude);
-        Ok((
-            e,
-            sim.steps,
-            sim.time,
-            start.elapsed().as_secs_f64(),
-            st.extra_seconds,
-            failed,
-        ))
-    }
-
     /// `(t, L1 velocity error, L1 pressure error)` after each step.
     type Steps = Vec<(f64, f64, f64)>;
 
@@ -1842,7 +1816,7 @@ mod flows {
             CavityConfig::default().n
         );
         let mut csv = String::from(
-            "flow,weight,variant,n,t_end,steps,wall_s,extra_gradient_s,err1,err2,err3,err4,steady,failed\n",
+            "flow,weight,variant,n,t_end,steps,wall_s,extra_gradient_s,rms_u,max_u,rms_v,max_v,steady,failed\n",
         );
         // Taylor–Green, step by step: the Lagrangian frame against the Eulerian one
         let ns = if args.quick { 24 } else { 48 };
@@ -1896,6 +1870,31 @@ mod flows {
                 );
             }
         }
+        // how long each variant survives (t ≤ 0.5)
+        let long = (0.5 / (0.2 * 3.0 / ns as f64)).round() as usize;
+        println!("\nLagrangian Taylor–Green, n = {ns}, CFL 0.2, up to {long} steps (t = 0.5):\n");
+        for v in FLOW_VARIANTS {
+            let e = tg_steps(&tg(Motion::Lagrangian), Some(v), long)?;
+            let (t, eu) = e.last().map(|l| (l.0, l.1)).unwrap_or((0.0, f64::NAN));
+            let status = if e.len() < long {
+                format!("failed in step {}", e.len() + 1)
+            } else if eu.is_nan() || eu >= 1.0 {
+                "diverged: error above 1".to_string()
+            } else {
+                "completed".to_string()
+            };
+            println!(
+                "  {}: {} steps, t = {t:.3}, L1 velocity error {eu:.2e} ({status})",
+                v.0,
+                e.len()
+            );
+            let _ = writeln!(
+                steps_csv,
+                "Lagrangian-long,{},{ns},0.2,{},{t:.5},{eu:.6e},",
+                v.0,
+                e.len()
+            );
+        }
         // the same time with smaller steps: a per-projection error accumulates with the steps
         println!("\nLagrangian Taylor–Green, n = {ns}: L1 velocity error at t ≈ 0.1 against the CFL number\n");
         println!(
@@ -1924,59 +1923,6 @@ mod flows {
             println!("{line}");
         }
         write(&out.join("tg_steps.csv"), &steps_csv)?;
-        // Lagrangian Taylor–Green: exact solution
-        let tg_n = if args.quick { 24 } else { 50 };
-        let tg_t = if args.quick { 0.3 } else { 0.5 };
-        println!(
-            "\nLagrangian Taylor–Green, Re 100, n = {tg_n}, t = {tg_t}: L1 errors against the exact solution\n"
-        );
-        println!(
-            "{:<12} {:<9} {:<7} | {:>9} {:>9} {:>9} | {:>6} {:>7} {:>7}",
-            "weight", "shifting", "variant", "u L1", "max|u|", "p L1", "steps", "wall s", "extra s"
-        );
-        for w in [Weight::WendlandC2, Weight::Poly { p: 2, m: 4 }] {
-            for shifting in [true, false] {
-                for v in FLOW_VARIANTS {
-                    let mut cfg = TaylorGreenConfig {
-                        n: tg_n,
-                        t_end: tg_t,
-                        weight: w,
-                        motion: Motion::Lagrangian,
-                        ..Default::default()
-                    };
-                    if !shifting {
-                        cfg.shifting = None;
-                    }
-                    let (e, steps, t, wall, extra, failed) = run_tg(&cfg, v)?;
-                    println!(
-                        "{:<12} {:<9} {:<7} | {:>9.3e} {:>9.3e} {:>9.3e} | {:>6} {:>7.2} {:>7.2}{}",
-                        w.to_string(),
-                        if shifting { "yes" } else { "no" },
-                        v.0,
-                        e.l1_velocity_error,
-                        e.linf_decay_error,
-                        e.l1_pressure_error,
-                        steps,
-                        wall,
-                        extra,
-                        failed
-                            .as_ref()
-                            .map(|m| format!("  FAILED at t = {t:.3}: {m}"))
-                            .unwrap_or_default()
-                    );
-                    let _ = writeln!(
-                        csv,
-                        "taylor_green{},{w},{},{tg_n},{t:.4},{steps},{wall:.3},{extra:.3},{:.6e},{:.6e},{:.6e},,,{}",
-                        if shifting { "" } else { "_noshift" },
-                        v.0,
-                        e.l1_velocity_error,
-                        e.linf_decay_error,
-                        e.l1_pressure_error,
-                        failed.unwrap_or_default().replace(',', ";")
-                    );
-                }
-            }
-        }
         // Lagrangian cavity against Ghia
         let mut base = CavityConfig {
             motion: Motion::Lagrangian,
@@ -1986,7 +1932,7 @@ mod flows {
         base.n = args.cavity_n.unwrap_or(if args.quick { 24 } else { 50 });
         base.t_end = args
             .cavity_t_end
-            .unwrap_or(if args.quick { 1.0 } else { 40.0 });
+            .unwrap_or(if args.quick { 1.0 } else { 15.0 });
         println!(
             "\nLagrangian cavity, Re 100, n = {}, t_end ≤ {}: errors against Ghia et al. (lid-speed units)\n",
             base.n, base.t_end
@@ -2045,9 +1991,175 @@ mod flows {
         }
         write(&out.join("flows.csv"), &csv)?;
         println!(
-            "\nerr1..err4 in flows.csv: Taylor–Green u L1, max-speed decay, p L1; cavity rms u, max u, rms v, max v"
+            "\nflows.csv: errors rms u, max u, rms v, max v against Ghia (NaN when the run failed)"
         );
         println!("\nflow part: {:.1} s", t0.elapsed().as_secs_f64());
+        Ok(())
+    }
+}
+
+// =============================================================================================
+// Choosing the weight and h: the product's setting
+// =============================================================================================
+mod weights {
+    use super::*;
+    use gpm::scene::cavity::{self, CavityConfig};
+
+    fn rel_l2(vol: &[f64], a: &[f64], b: &[f64]) -> f64 {
+        let n: f64 = vol
+            .iter()
+            .zip(a.iter().zip(b))
+            .map(|(w, (x, y))| w * (x - y).powi(2))
+            .sum();
+        let d: f64 = vol.iter().zip(b).map(|(w, y)| w * y * y).sum();
+        (n / d).sqrt()
+    }
+
+    pub fn run(args: &Args, out: &Path) -> Result<()> {
+        let t0 = Instant::now();
+        println!("\n== Choosing the weight and h: number-density volumes, fixed h/Δx ==");
+        let ws: Vec<Weight> = vec![
+            Weight::CubicSpline,
+            Weight::WendlandC2,
+            Weight::WendlandC4,
+            Weight::Poly { p: 1, m: 3 },
+            Weight::Poly { p: 2, m: 3 },
+            Weight::Poly { p: 2, m: 4 },
+        ];
+        let ratios = [2.5, 3.0, 4.0];
+        let n = if args.quick { 32 } else { 50 };
+        let dx = 1.0 / n as f64;
+        let per = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
+        let configs = [
+            ("lattice", lattice([0.0, 0.0], [1.0, 1.0], dx)),
+            ("TG-advected t=0.05", projection::advected(n, 0.05)),
+        ];
+        let mut csv = String::from(
+            "kind,config,weight,h_over_dx,neighbours,grad_err,lap_err,uniform_div_max,kick,rms_u,max_u,rms_v,max_v,steps,wall_s\n",
+        );
+        println!(
+            "\noperators on a periodic box, n = {n}: relative ℓ2 errors of ∇h q and Δh q (q = sin 2πx sin 4πy / 2π), \
+             max |∇̂h·(1,0)|, and the kick ‖P u_TG − u_TG‖/‖u_TG‖ of today's projection\n"
+        );
+        println!(
+            "{:<19} {:<10} {:>5} | {:>5} {:>9} {:>9} {:>9} {:>9}",
+            "configuration", "weight", "h/Δx", "nbrs", "∇h err", "Δh err", "∇̂h·1 max", "kick"
+        );
+        for (cname, x) in &configs {
+            for &w in &ws {
+                for &r in &ratios {
+                    let nl = NeighborList::build(
+                        NeighborConfig::new_relative(w, dx, r, 0.0).with_periodicity(per),
+                        x,
+                    )?;
+                    let vol = number_density_volumes(&nl);
+                    let qv: Vec<(f64, [f64; 2], f64)> = x.iter().map(projection::q).collect();
+                    let qs: Vec<f64> = qv.iter().map(|e| e.0).collect();
+                    let g = grad_diff(&nl, &vol, &qs);
+                    let gx: Vec<f64> = g.iter().flat_map(|v| [v[0], v[1]]).collect();
+                    let gex: Vec<f64> = qv.iter().flat_map(|e| [e.1[0], e.1[1]]).collect();
+                    let vol2: Vec<f64> = vol.iter().flat_map(|&v| [v, v]).collect();
+                    let e_g = rel_l2(&vol2, &gx, &gex);
+                    let lq: Vec<f64> = qv.iter().map(|e| e.2).collect();
+                    let e_l = rel_l2(&vol, &laplacian(&nl, &vol, &qs), &lq);
+                    let du = div_sum(&nl, &vol, &vec![[1.0, 0.0]; x.len()]);
+                    let du_max = du.iter().map(|v| v.abs()).fold(0.0, f64::max);
+                    // one projection of the divergence-free field (Δt/ρ = 1)
+                    let role = vec![Role::Fluid; x.len()];
+                    let comps = connectivity(&nl, &role);
+                    let udf: Vec<[f64; 2]> = x.iter().map(projection::u_df).collect();
+                    let minus: Vec<[f64; 2]> = udf.iter().map(|a| [-a[0], -a[1]]).collect();
+                    let rhs = div_sum(&nl, &vol, &minus);
+                    let mut phi = vec![0.0; x.len()];
+                    PoissonSolver::new().solve(
+                        &nl,
+                        &vol,
+                        &role,
+                        &comps,
+                        &rhs,
+                        &mut phi,
+                        &SolveParams::default(),
+                    )?;
+                    let gp = grad_diff(&nl, &vol, &phi);
+                    let kick = (vol.iter().zip(&gp).map(|(w, g)| w * norm2(g)).sum::<f64>()
+                        / vol.iter().zip(&udf).map(|(w, u)| w * norm2(u)).sum::<f64>())
+                    .sqrt();
+                    let nb = nl.n_pairs() as f64 / x.len() as f64;
+                    println!(
+                        "{:<19} {:<10} {:>5.1} | {:>5.1} {:>9.2e} {:>9.2e} {:>9.3} {:>9.2e}",
+                        cname,
+                        w.to_string(),
+                        r,
+                        nb,
+                        e_g,
+                        e_l,
+                        du_max,
+                        kick
+                    );
+                    let _ = writeln!(
+                        csv,
+                        "operators,{cname},{w},{r},{nb:.1},{e_g:.6e},{e_l:.6e},{du_max:.6e},{kick:.6e},,,,,,"
+                    );
+                }
+            }
+        }
+        // the default cavity (Eulerian, mirror ghosts) against Ghia
+        let cn = if args.quick { 20 } else { 50 };
+        let ct = if args.quick { 2.0 } else { 40.0 };
+        let (cw, cr): (Vec<Weight>, Vec<f64>) = if args.quick {
+            (
+                vec![Weight::WendlandC2, Weight::Poly { p: 2, m: 4 }],
+                vec![3.0],
+            )
+        } else {
+            (ws.clone(), ratios.to_vec())
+        };
+        println!(
+            "\ndefault cavity (Eulerian, mirror ghosts), Re 100, n = {cn}, to steadiness (t ≤ {ct}): errors against Ghia et al.\n"
+        );
+        println!(
+            "{:<10} {:>5} | {:>8} {:>8} {:>8} {:>8} | {:>6} {:>7}",
+            "weight", "h/Δx", "rms u", "max u", "rms v", "max v", "steps", "wall s"
+        );
+        for &w in &cw {
+            for &r in &cr {
+                let cfg = CavityConfig {
+                    n: cn,
+                    t_end: ct,
+                    weight: w,
+                    h_over_dx: r,
+                    ..Default::default()
+                };
+                let res = cavity::run(&cfg, |_, _| Ok(()));
+                match res {
+                    Ok(res) => {
+                        let g = res.ghia.unwrap_or_default();
+                        println!(
+                            "{:<10} {:>5.1} | {:>8.5} {:>8.5} {:>8.5} {:>8.5} | {:>6} {:>7.1}",
+                            w.to_string(),
+                            r,
+                            g.rms_u,
+                            g.max_u,
+                            g.rms_v,
+                            g.max_v,
+                            res.steps,
+                            res.wall_seconds
+                        );
+                        let _ = writeln!(
+                            csv,
+                            "cavity,eulerian,{w},{r},,,,,,{:.6e},{:.6e},{:.6e},{:.6e},{},{:.3}",
+                            g.rms_u, g.max_u, g.rms_v, g.max_v, res.steps, res.wall_seconds
+                        );
+                    }
+                    Err(e) => {
+                        println!("{:<10} {:>5.1} | failed: {e}", w.to_string(), r);
+                        let _ = writeln!(csv, "cavity,eulerian,{w},{r},,,,,,,,,,,");
+                    }
+                }
+            }
+        }
+        write(&out.join("weights.csv"), &csv)?;
+        println!("\nweights part: {:.1} s", t0.elapsed().as_secs_f64());
         Ok(())
     }
 }
