@@ -261,3 +261,37 @@ fn ctrl_c_finishes_the_file() {
         "statistics agree with what was read"
     );
 }
+
+/// Found by `cargo fuzz run replay`: a schema record whose name announces 4 GiB. The `mcap`
+/// crate reserves the announced length before reading; the reader must check it against the
+/// record first and report the corrupt record instead of asking for 4 GiB.
+#[test]
+fn huge_length_prefix_is_reported_not_allocated() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("fuzz_oom.mcap");
+    let mut b = mcap::MAGIC.to_vec();
+    b.push(0x03); // schema record
+    b.extend_from_slice(&9u64.to_le_bytes()); // record length
+    b.extend_from_slice(&[0x01, 0x00]); // schema id
+    b.extend_from_slice(&[0xff; 4]); // name length 0xFFFFFFFF
+    b.extend_from_slice(b"adv"); // 3 of the 4 GiB
+    std::fs::write(&p, &b).unwrap();
+    let r = Replay::open(&p).unwrap();
+    assert!(r.steps.is_empty());
+    let d = r.damage().expect("reported as damaged");
+    assert!(
+        d.reason.contains("schema name") && d.reason.contains("longer than"),
+        "{}",
+        d.reason
+    );
+    // the exact bytes the fuzzer found (two records in one, length fields all 0xFF)
+    let found: [u8; 49] = [
+        0x89, 0x4d, 0x43, 0x41, 0x50, 0x30, 0x0d, 0x0a, 0x03, 0x06, 0, 0, 0, 0, 0, 0, 0, 0x09,
+        0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff,
+        0xff, 0xff, 0xff, 0xff, 0, 0, 0, 0xa4, 0xbf, 0xc1, 0x61, 0x64, 0x76, 0x65, 0x63, 0x74,
+    ];
+    std::fs::write(&p, found).unwrap();
+    if let Ok(r) = Replay::open(&p) {
+        assert!(r.steps.is_empty() && r.damage().is_some());
+    }
+}

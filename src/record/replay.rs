@@ -355,7 +355,7 @@ pub fn scan(
                     break;
                 }
                 op::STATISTICS => {
-                    if let Ok(Record::Statistics(s)) = mcap::parse_record(opcode, &body) {
+                    if let Ok(Record::Statistics(s)) = parse_checked(opcode, &body) {
                         out.announced_messages = Some(s.message_count);
                     }
                 }
@@ -364,7 +364,7 @@ pub fn scan(
             continue;
         }
         match opcode {
-            op::SCHEMA | op::CHANNEL | op::MESSAGE => match mcap::parse_record(opcode, &body) {
+            op::SCHEMA | op::CHANNEL | op::MESSAGE => match parse_checked(opcode, &body) {
                 Ok(Record::Schema { header, .. }) => linker.schema(header.id, &header.name),
                 Ok(Record::Channel(c)) => {
                     linker.channel(c.id, c.schema_id, &c.topic, &c.message_encoding)
@@ -440,11 +440,77 @@ pub fn scan(
 /// The records of one chunk record (`head` + `body`), decompressed and CRC-checked *before*
 /// any inner record is parsed, with every length bounded by `limit` (so corrupt lengths inside
 /// a damaged chunk cannot make the reader allocate them).
-fn chunk_records(
-    head: &[u8; 9],
-    body: &[u8],
-    limit: u64,
-) -> Result<Vec<Record<'static>>, mcap::McapError> {
+/// `mcap::parse_record` after checking every length prefix of the record against the bytes
+/// that remain: the `mcap` crate reserves a string's announced length before reading it, so a
+/// corrupt length (found by the fuzzer: `0xFFFFFFFF` in a schema name) would otherwise ask the
+/// allocator for 4 GiB.
+fn parse_checked(opcode: u8, body: &[u8]) -> Result<Record<'_>, String> {
+    if let Err(what) = lengths_fit(opcode, body) {
+        return Err(format!(
+            "{what} is longer than the {} bytes of the record",
+            body.len()
+        ));
+    }
+    mcap::parse_record(opcode, body).map_err(|e| e.to_string())
+}
+
+/// Walks the length-prefixed fields of the records gpm reads (schema, channel, statistics).
+fn lengths_fit(opcode: u8, body: &[u8]) -> Result<(), &'static str> {
+    struct Walk<'a> {
+        b: &'a [u8],
+        at: usize,
+    }
+    impl Walk<'_> {
+        fn skip(&mut self, n: usize, what: &'static str) -> Result<(), &'static str> {
+            if self.b.len() - self.at < n {
+                return Err(what);
+            }
+            self.at += n;
+            Ok(())
+        }
+        fn prefixed(&mut self, what: &'static str) -> Result<usize, &'static str> {
+            if self.b.len() - self.at < 4 {
+                return Err(what);
+            }
+            let n = u32::from_le_bytes(self.b[self.at..self.at + 4].try_into().unwrap()) as usize;
+            self.at += 4;
+            let start = self.at;
+            self.skip(n, what)?;
+            Ok(start)
+        }
+    }
+    let mut w = Walk { b: body, at: 0 };
+    match opcode {
+        op::SCHEMA => {
+            w.skip(2, "the schema id")?;
+            w.prefixed("the schema name")?;
+            w.prefixed("the schema encoding")?;
+            w.prefixed("the schema data")?;
+        }
+        op::CHANNEL => {
+            w.skip(4, "the channel ids")?;
+            w.prefixed("the channel topic")?;
+            w.prefixed("the channel message encoding")?;
+            let start = w.prefixed("the channel metadata")?;
+            let mut m = Walk {
+                b: &body[start..w.at],
+                at: 0,
+            };
+            while m.at < m.b.len() {
+                m.prefixed("a channel metadata key")?;
+                m.prefixed("a channel metadata value")?;
+            }
+        }
+        op::STATISTICS => {
+            w.skip(8 + 2 + 4 * 4 + 16, "the statistics counts")?;
+            w.prefixed("the statistics channel message counts")?;
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+fn chunk_records(head: &[u8; 9], body: &[u8], limit: u64) -> Result<Vec<Record<'static>>, String> {
     use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
@@ -456,7 +522,7 @@ fn chunk_records(
     let mut src = head.iter().chain(body.iter());
     let mut out = Vec::new();
     while let Some(event) = reader.next_event() {
-        match event? {
+        match event.map_err(|e| e.to_string())? {
             LinearReadEvent::ReadRequest(n) => {
                 let dst = reader.insert(n);
                 let mut k = 0;
@@ -467,7 +533,7 @@ fn chunk_records(
                 reader.notify_read(k);
             }
             LinearReadEvent::Record { data, opcode } => {
-                out.push(mcap::parse_record(opcode, data)?.into_owned());
+                out.push(parse_checked(opcode, data)?.into_owned());
             }
         }
     }
