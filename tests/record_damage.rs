@@ -294,4 +294,14 @@ fn huge_length_prefix_is_reported_not_allocated() {
     if let Ok(r) = Replay::open(&p) {
         assert!(r.steps.is_empty() && r.damage().is_some());
     }
+    // a header record inside a zstd chunk with a 650 MB profile length (second fuzzer finding)
+    let in_chunk = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/fuzz_header_in_chunk.mcap"
+    ))
+    .unwrap();
+    std::fs::write(&p, in_chunk).unwrap();
+    if let Ok(r) = Replay::open(&p) {
+        assert!(r.damage().is_some() || r.steps.is_empty());
+    }
 }

@@ -532,9 +532,14 @@ fn chunk_records(head: &[u8; 9], body: &[u8], limit: u64) -> Result<Vec<Record<'
                 }
                 reader.notify_read(k);
             }
-            LinearReadEvent::Record { data, opcode } => {
+            // only the records a chunk may hold are parsed (the fuzzer found a header record
+            // inside a chunk whose string length asked for 650 MB)
+            LinearReadEvent::Record { data, opcode }
+                if matches!(opcode, op::SCHEMA | op::CHANNEL | op::MESSAGE) =>
+            {
                 out.push(parse_checked(opcode, data)?.into_owned());
             }
+            LinearReadEvent::Record { .. } => {}
         }
     }
     Ok(out)
