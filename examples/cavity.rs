@@ -39,6 +39,9 @@ struct Args {
     /// Pressure scheme: non-incremental, incremental, rotational.
     #[arg(long, default_value = "rotational")]
     scheme: Scheme,
+    /// Gradient of the predictor and the correction: difference (∇h, default) or renormalised.
+    #[arg(long, default_value = "difference")]
+    gradient: gpm::consistent::GradientKind,
     /// Reference weight: cubic, wendland2, wendland4, polyP-M (r^P (1-r)^M).
     #[arg(long, default_value = "wendland2")]
     weight: Weight,
@@ -95,6 +98,7 @@ fn config(a: &Args) -> CavityConfig {
         re: a.re,
         n: a.n,
         scheme: a.scheme,
+        gradient: a.gradient,
         weight: a.weight,
         h_over_dx: a.h_ratio,
         motion: a.motion,

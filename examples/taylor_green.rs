@@ -43,6 +43,9 @@ struct Args {
     /// Pressure scheme: non-incremental, incremental, rotational.
     #[arg(long, default_value = "rotational")]
     scheme: Scheme,
+    /// Gradient of the predictor and the correction: difference (∇h, default) or renormalised.
+    #[arg(long, default_value = "difference")]
+    gradient: gpm::consistent::GradientKind,
     /// Reference weight.
     #[arg(long, default_value = "wendland2")]
     weight: Weight,
@@ -90,6 +93,7 @@ fn config(a: &Args) -> TaylorGreenConfig {
         t_end: a.t_end,
         re: a.re,
         scheme: a.scheme,
+        gradient: a.gradient,
         weight: a.weight,
         h_over_dx: a.h_ratio,
         motion: a.motion,

@@ -281,3 +281,79 @@ fn projection_step_is_send_and_sync() {
     check::<ProjectionStep<2>>();
     check::<ProjectionStep<3>>();
 }
+
+/// `ProjectionParams::gradient = Renormalised` puts `∇ᶜ = B∇h` into the correction: on jittered
+/// particles the corrected velocity is exactly `u* − (Δt/ρ) ∇ᶜφ` (and differs from the `∇h`
+/// correction), while on the lattice `B = I` and both agree to round-off.
+#[test]
+fn renormalised_gradient_option_is_used_by_the_correction() {
+    use gpm::consistent::{grad_renormalised, GradientKind, Renormalisation};
+    use gpm::operators::grad_diff;
+    for (jit, seed) in [(0.0, 0), (0.3, 11)] {
+        let (mut p, _, bc) = periodic_case(24, false);
+        let dx = 1.0 / 24.0;
+        if jit > 0.0 {
+            jitter(&mut p.x, jit * dx, seed);
+            for x in p.x.iter_mut() {
+                for c in x.iter_mut() {
+                    *c = c.rem_euclid(1.0);
+                }
+            }
+        }
+        let per = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
+        let nl = NeighborList::build(
+            NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.0).with_periodicity(per),
+            &p.x,
+        )
+        .unwrap();
+        p.vol = number_density_volumes(&nl);
+        let dt = 0.01;
+        let mut out = Vec::new();
+        for kind in [GradientKind::Difference, GradientKind::Renormalised] {
+            let mut q = p.clone();
+            let mut params = ProjectionParams::<2>::new(0.0);
+            params.scheme = Scheme::NonIncremental;
+            params.gradient = kind;
+            let mut step = ProjectionStep::new();
+            step.capture = true;
+            step.step(&mut q, &nl, &bc, &params, dt, None).unwrap();
+            let cap = step.captured.take().unwrap();
+            let g = match kind {
+                GradientKind::Difference => grad_diff(&nl, &q.vol, &cap.phi),
+                GradientKind::Renormalised => {
+                    let b = Renormalisation::compute(&nl, &q.vol, nl.len());
+                    grad_renormalised(&nl, &q.vol, &b, &cap.phi)
+                }
+            };
+            let scale = cap
+                .u_star
+                .iter()
+                .map(|u| u[0].abs().max(u[1].abs()))
+                .fold(0.0, f64::max);
+            for i in 0..q.len() {
+                for k in 0..2 {
+                    let expect = cap.u_star[i][k] - dt * g[i][k];
+                    assert!(
+                        (q.u[i][k] - expect).abs() <= 1e-12 * scale,
+                        "{kind:?} jitter {jit}: particle {i} component {k}: {} vs {expect}",
+                        q.u[i][k]
+                    );
+                }
+            }
+            out.push(q.u);
+        }
+        let diff = out[0]
+            .iter()
+            .zip(&out[1])
+            .map(|(a, b)| (a[0] - b[0]).abs().max((a[1] - b[1]).abs()))
+            .fold(0.0, f64::max);
+        if jit == 0.0 {
+            assert!(
+                diff < 1e-10,
+                "lattice: B = I, yet the corrections differ by {diff}"
+            );
+        } else {
+            assert!(diff > 1e-3, "jittered: the option changed nothing ({diff})");
+        }
+    }
+}

@@ -78,6 +78,9 @@ struct RunArgs {
     /// Pressure scheme: non-incremental, incremental, rotational.
     #[arg(long)]
     scheme: Option<Scheme>,
+    /// Gradient of the predictor and the correction: difference (default) or renormalised.
+    #[arg(long)]
+    gradient: Option<gpm::consistent::GradientKind>,
     /// Reference weight: cubic, wendland2, wendland4, polyP-M.
     #[arg(long)]
     weight: Option<Weight>,
@@ -225,6 +228,7 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             override_opt(&mut cfg.n, a.n);
             override_opt(&mut cfg.t_end, a.t_end);
             override_opt(&mut cfg.scheme, a.scheme);
+            override_opt(&mut cfg.gradient, a.gradient);
             override_opt(&mut cfg.weight, a.weight);
             override_opt(&mut cfg.h_over_dx, a.h_ratio);
             override_opt(&mut cfg.motion, a.motion);
@@ -255,6 +259,7 @@ fn run(a: RunArgs) -> Result<ExitCode> {
             override_opt(&mut cfg.n, a.n);
             override_opt(&mut cfg.t_end, a.t_end);
             override_opt(&mut cfg.scheme, a.scheme);
+            override_opt(&mut cfg.gradient, a.gradient);
             override_opt(&mut cfg.weight, a.weight);
             override_opt(&mut cfg.h_over_dx, a.h_ratio);
             override_opt(&mut cfg.motion, a.motion);

@@ -1329,6 +1329,9 @@ pub struct ProjectionSpec {
     pub allowed_floating: usize,
     /// Connectivity and c0 reused while their inputs are unchanged.
     pub reuse_diagnostics: bool,
+    /// Gradient of the predictor and the correction (files before it was recorded: difference).
+    #[serde(default)]
+    pub gradient: crate::consistent::GradientKind,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1373,6 +1376,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             source_ghosts,
             allowed_floating,
             reuse_diagnostics,
+            gradient,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1384,6 +1388,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             source_ghosts: source_ghosts.into(),
             allowed_floating,
             reuse_diagnostics,
+            gradient,
         }
     }
 }
@@ -1401,6 +1406,7 @@ impl ProjectionSpec {
             source_ghosts: self.source_ghosts.into(),
             allowed_floating: self.allowed_floating,
             reuse_diagnostics: self.reuse_diagnostics,
+            gradient: self.gradient,
         })
     }
 
@@ -1428,6 +1434,13 @@ impl ProjectionSpec {
                 (
                     "reuse_diagnostics",
                     boolean("connectivity and c0 reused while their inputs are unchanged"),
+                ),
+                (
+                    "gradient",
+                    string_enum(
+                        "gradient of the predictor and the correction: difference (∇h, adjoint to the source) or renormalised (B∇h)",
+                        &["difference", "renormalised"],
+                    ),
                 ),
             ],
         )

@@ -9,6 +9,7 @@
 //! `steady.average_window` time units (Lagrangian particles sample a steady field with noise).
 
 use crate::boundary::Walls;
+use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::flow::{
     FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
@@ -67,6 +68,8 @@ pub struct CavityConfig {
     pub weight: Weight,
     /// Pressure-correction scheme.
     pub scheme: Scheme,
+    /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
+    pub gradient: GradientKind,
     /// Frame of the particles.
     pub motion: Motion,
     /// Integrator of the explicit terms.
@@ -132,6 +135,7 @@ impl Default for CavityConfig {
             skin_over_h: 0.3,
             weight: Weight::WendlandC2,
             scheme: Scheme::Rotational,
+            gradient: GradientKind::Difference,
             motion: Motion::Eulerian,
             integrator: Integrator::Ab2,
             viscous_theta: 0.5,
@@ -236,6 +240,7 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
     let mut projection = ProjectionParams::new(cfg.lid.abs() / cfg.re);
     projection.scheme = cfg.scheme;
+    projection.gradient = cfg.gradient;
     projection.viscous_theta = cfg.viscous_theta;
     projection.source_ghosts = cfg.source_ghosts.into();
     projection.solve = cfg.solve;

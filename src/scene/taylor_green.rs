@@ -5,6 +5,7 @@
 //! `p = −ρU² e^{−16π²t/Re} (cos 4πx + cos 4πy)/4`.
 
 use crate::boundary::PeriodicBox;
+use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::flow::{
     FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
@@ -37,6 +38,8 @@ pub struct TaylorGreenConfig {
     pub weight: Weight,
     /// Pressure scheme.
     pub scheme: Scheme,
+    /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
+    pub gradient: GradientKind,
     /// Frame.
     pub motion: Motion,
     /// Integrator of the explicit terms.
@@ -65,6 +68,7 @@ impl Default for TaylorGreenConfig {
             skin_over_h: 0.3,
             weight: Weight::WendlandC2,
             scheme: Scheme::Rotational,
+            gradient: GradientKind::Difference,
             motion: Motion::Eulerian,
             integrator: Integrator::Ab2,
             viscous_theta: 0.5,
@@ -157,6 +161,7 @@ pub fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, E
     let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
     let mut projection = ProjectionParams::new(cfg.amplitude.abs() / cfg.re);
     projection.scheme = cfg.scheme;
+    projection.gradient = cfg.gradient;
     projection.viscous_theta = cfg.viscous_theta;
     projection.solve = cfg.solve;
     projection.allowed_floating = 1;
