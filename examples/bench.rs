@@ -27,6 +27,7 @@ use gpm::particles::{Particles, Role};
 use gpm::poisson::{SolveParams, SolverKind};
 use gpm::projection::{ProjectionParams, Scheme};
 use gpm::record::{RecordLevel, Recorder};
+use gpm::scene::cavity;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -193,7 +194,7 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
     let mut iters = 0.0;
     for k in 0..c.warmup + c.steps {
         if !c.reuse {
-            sim.nl.invalidate();
+            sim.invalidate_neighbors();
         }
         let t0 = Instant::now();
         let r = sim.advance()?;
@@ -338,11 +339,16 @@ fn main_inner(a: Args) -> Result<()> {
                 cases.push(case(d, n, frame, SolverKind::Auto, true, 2, steps));
             }
         }
-        // solver comparison, reuse and threads at 10⁵ (2D) and 10⁴ (3D)
-        for solver in [SolverKind::Cholesky, SolverKind::Cg] {
+        // solver comparison (the AMG iteration counts at 10⁴ and 10⁶ give the scaling),
+        // reuse and threads at 10⁵ (2D) and 10⁴ (3D)
+        for solver in [SolverKind::Cholesky, SolverKind::Cg, SolverKind::Amg] {
             cases.push(case(2, 100_000, "moving", solver, true, 2, 6));
         }
-        cases.push(case(3, 10_000, "moving", SolverKind::Cg, true, 2, 6));
+        cases.push(case(2, 10_000, "fixed", SolverKind::Amg, true, 2, 10));
+        cases.push(case(2, 10_000, "moving", SolverKind::Amg, true, 2, 10));
+        for solver in [SolverKind::Cg, SolverKind::Cholesky] {
+            cases.push(case(3, 10_000, "moving", solver, true, 2, 6));
+        }
         for frame in ["fixed", "moving"] {
             cases.push(case(2, 100_000, frame, SolverKind::Auto, false, 2, 4));
             cases.push(case(2, 100_000, frame, SolverKind::Auto, true, 1, 6));
@@ -405,6 +411,73 @@ fn main_inner(a: Args) -> Result<()> {
         }
     }
     println!("wrote {}", a.out.join("steps.csv").display());
+    cavity_reuse(&a)?;
+    Ok(())
+}
+
+/// Cavity step cost with every reuse switch on and off (neighbour list, matrix values,
+/// symbolic and numeric factorisations, warm start, diagnostics cache).
+fn cavity_reuse(a: &Args) -> Result<()> {
+    let n = if a.quick { 50 } else { 100 };
+    let (warmup, steps) = (3, if a.quick { 10 } else { 30 });
+    let mut csv = std::fs::File::create(a.out.join("cavity_reuse.csv"))?;
+    writeln!(csv, "n,reuse,seconds_per_step,neighbors,assembly,solve")?;
+    let mut per_step = [0.0; 2];
+    for (k, reuse) in [true, false].into_iter().enumerate() {
+        let mut cfg = cavity::CavityConfig {
+            n,
+            ..Default::default()
+        };
+        cfg.solve.warm_start = reuse;
+        cfg.solve.reuse_symbolic = reuse;
+        cfg.solve.reuse_numeric = reuse;
+        cfg.solve.reuse_values = reuse;
+        let mut sim = cavity::build(&cfg)?;
+        sim.params.projection.reuse_diagnostics = reuse;
+        let (mut wall, mut neigh, mut assem, mut solve) = (0.0, 0.0, 0.0, 0.0);
+        for s in 0..warmup + steps {
+            if !reuse {
+                sim.invalidate_neighbors();
+            }
+            let t = Instant::now();
+            let r = sim.advance()?;
+            let w = t.elapsed().as_secs_f64();
+            if s >= warmup {
+                let (p, v) = (&r.projection.solve, &sim.projection.viscous_info);
+                wall += w;
+                neigh += r.neighbors_seconds;
+                assem += p.assemble_seconds + v.assemble_seconds;
+                solve += p.symbolic_seconds
+                    + p.numeric_seconds
+                    + p.solve_seconds
+                    + v.symbolic_seconds
+                    + v.numeric_seconds
+                    + v.solve_seconds;
+            }
+        }
+        let m = steps as f64;
+        per_step[k] = wall / m;
+        writeln!(
+            csv,
+            "{n},{reuse},{:.6e},{:.6e},{:.6e},{:.6e}",
+            wall / m,
+            neigh / m,
+            assem / m,
+            solve / m
+        )?;
+        println!(
+            "cavity n = {n}, reuse {:>5}: {:7.2} ms/step (neighbours {:.2}, assembly {:.2}, factor+solve {:.2} ms)",
+            reuse,
+            1e3 * wall / m,
+            1e3 * neigh / m,
+            1e3 * assem / m,
+            1e3 * solve / m
+        );
+    }
+    println!(
+        "cavity n = {n}: every reuse off / on = {:.2}x",
+        per_step[1] / per_step[0]
+    );
     Ok(())
 }
 

@@ -521,6 +521,14 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
     }
 
+    /// Forces the next [`advance`](Self::advance) to search neighbours again, re-create the
+    /// ghosts and recompute volumes, as if the particles had moved (benchmarks of reuse: a
+    /// fixed-particle run otherwise builds its neighbour list once).
+    pub fn invalidate_neighbors(&mut self) {
+        self.nl.invalidate();
+        self.stale = true;
+    }
+
     /// Brings ghosts, neighbours and volumes up to date with the positions.
     fn refresh(&mut self) -> Result<bool, Error> {
         let ghosts = self.plan.has(Stage::Ghosts);
