@@ -8,6 +8,7 @@
 //! ```
 //! writes `error_vs_n.csv` and prints the observed orders (least-squares slope of log error
 //! against log n, sign flipped so that a positive order means convergence).
+#![allow(clippy::type_complexity, clippy::needless_range_loop)]
 
 use anyhow::{Context, Result};
 use clap::Parser;

@@ -14,6 +14,7 @@
 //! reference run on *the same particles* with Δt/16 of the smallest step: the spatial
 //! discretisation is then identical in both runs and its error cancels exactly, leaving the
 //! temporal error of each scheme.
+#![allow(clippy::type_complexity, clippy::needless_range_loop)]
 
 use anyhow::{Context, Result};
 use clap::Parser;

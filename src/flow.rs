@@ -458,10 +458,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let plan = StagePlan::new(
             boundary.has_ghosts(),
             config.periodic.any(),
-            particles
-                .role
-                .iter()
-                .any(|r| *r == crate::particles::Role::Dirichlet),
+            particles.role.contains(&crate::particles::Role::Dirichlet),
             &params,
         );
         let reach = config.h + config.skin;

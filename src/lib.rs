@@ -52,6 +52,10 @@
 //! MCAP by [`record`].
 
 #![warn(missing_docs)]
+// `!(x > 0.0)` is deliberate: it rejects NaN, which `x <= 0.0` would let through
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+// numeric kernels index several parallel arrays with one loop variable
+#![allow(clippy::needless_range_loop)]
 
 pub mod boundary;
 pub mod consistent;

@@ -1,6 +1,7 @@
 //! The projection step: it does exactly the discrete algebra, it removes the divergence of smooth
 //! fields by the factor the consistency analysis predicts (MISSION §2), and the flows built on it
 //! meet their references.
+#![allow(clippy::type_complexity, clippy::needless_range_loop)]
 
 use gpm::boundary::{NoBoundary, PeriodicBox};
 use gpm::geometry::{jitter, lattice, number_density_volumes};
