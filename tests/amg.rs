@@ -597,3 +597,109 @@ fn generic_pcg_with_jacobi_matches_the_fused_loop() {
     let d: f64 = norm(&x3.iter().zip(&x2).map(|(a, b)| a - b).collect::<Vec<_>>());
     assert!(d <= (r3.abs_residual + r2.abs_residual) / lmin, "{d:e}");
 }
+
+/// `Auto` keeps a reused Cholesky factor while the matrix values stay the same, and moves to
+/// AMG-CG from the second numeric refactorisation on (values changing every step: moving
+/// particles); the answers agree to the solver tolerance.
+#[test]
+fn auto_moves_to_amg_when_the_factor_cannot_be_reused() {
+    let f = dirichlet_box::<2>(Spec::lattice(20, 3.0, Weight::WendlandC2));
+    let c = connectivity(&f.nl, &f.role);
+    let p = SolveParams::default();
+    let rhs = vec![1.0; f.len()];
+    let mut s = PoissonSolver::new();
+    let mut phi = vec![0.0; f.len()];
+    // fixed values: Cholesky, factor reused
+    for k in 0..3 {
+        let i = s
+            .solve(&f.nl, &f.vol, &f.role, &c, &rhs, &mut phi, &p)
+            .unwrap();
+        assert_eq!(i.solver, SolverKind::Cholesky);
+        assert_eq!(i.reused_numeric, k > 0);
+    }
+    // values change every solve
+    let mut kinds = Vec::new();
+    let mut last = (Vec::new(), Vec::new());
+    for k in 0..4 {
+        let vol = scaled(&f.vol, |i| {
+            1.0 + 0.01 * (k + 1) as f64 * ((i % 7) as f64 / 7.0)
+        });
+        let i = s
+            .solve(&f.nl, &vol, &f.role, &c, &rhs, &mut phi, &p)
+            .unwrap();
+        kinds.push(i.solver);
+        if k == 3 {
+            let mut chol = PoissonSolver::new();
+            let mut phi_c = vec![0.0; f.len()];
+            let ic = chol
+                .solve(&f.nl, &vol, &f.role, &c, &rhs, &mut phi_c, &p)
+                .unwrap();
+            assert_eq!(ic.solver, SolverKind::Cholesky);
+            last = (phi.clone(), phi_c);
+        }
+    }
+    assert_eq!(
+        kinds,
+        [
+            SolverKind::Cholesky,
+            SolverKind::Amg,
+            SolverKind::Amg,
+            SolverKind::Amg
+        ]
+    );
+    let scale = last.1.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let diff = last
+        .0
+        .iter()
+        .zip(&last.1)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(
+        diff <= 1e-7 * scale,
+        "AMG-CG vs Cholesky: {diff} (scale {scale})"
+    );
+}
+
+/// A floating (pure-Neumann) system with an inconsistent right side (a constant added):
+/// `pcg_with_null` keeps the residual orthogonal to the constants and converges to the
+/// least-squares solution, which Cholesky with the projected right side also gives.
+#[test]
+fn null_space_projected_cg_solves_the_consistent_part() {
+    use gpm::poisson::iterative::pcg_with_null;
+    let f = mirror_box::<2>(Spec::lattice(24, 3.0, Weight::WendlandC2));
+    let a = assemble(&f);
+    let m = CsrRef::from(&a);
+    let n = a.n();
+    let mut b = random_vec(n, 9);
+    let mean = b.iter().sum::<f64>() / n as f64;
+    b.iter_mut().for_each(|v| *v -= mean);
+    let consistent = b.clone();
+    b.iter_mut().for_each(|v| *v += 0.3); // inconsistent part along the constants
+    let all: Vec<u32> = (0..n as u32).collect();
+    let mut amg = Amg::build(m, AmgParams::default());
+    let mut x = vec![0.0; n];
+    let r = pcg_with_null(
+        &a,
+        &b,
+        &mut x,
+        1e-10,
+        0.0,
+        500,
+        &mut gpm::poisson::amg::AmgPreconditioner {
+            amg: &mut amg,
+            a: m,
+        },
+        &[all.as_slice()],
+    )
+    .unwrap();
+    assert!(r.iters < 100, "{r:?}");
+    // K x = the consistent part, independently measured
+    let mut kx = vec![0.0; n];
+    a.spmv(&x, &mut kx);
+    let res = kx
+        .iter()
+        .zip(&consistent)
+        .map(|(k, c)| (k - c) * (k - c))
+        .sum::<f64>()
+        .sqrt();
+    assert!(res <= 1e-9 * norm(&consistent), "residual {res}");
+}

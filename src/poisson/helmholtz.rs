@@ -97,17 +97,13 @@ impl HelmholtzSolver {
             }
         }
         let assemble_seconds = t0.elapsed().as_secs_f64();
-        // Auto: Cholesky in 2D up to the limit, Jacobi-CG otherwise (H = W + cK is dominated by
-        // the mass term W for the usual viscous steps, where Jacobi already converges quickly);
-        // AMG-CG only on request
+        // Auto: Jacobi-CG with warm start. H = W + cK is dominated by the mass term W for the
+        // usual viscous steps, so Jacobi converges in a few iterations; the two triangular
+        // solves of a reused Cholesky factor cost more from 10⁵ unknowns on, and a factor that
+        // must be recomputed every step (moving particles) far more (examples/bench).
+        // Cholesky and AMG-CG on request.
         let kind = match params.solver {
-            SolverKind::Auto => {
-                if D == 2 && m <= params.direct_limit {
-                    SolverKind::Cholesky
-                } else {
-                    SolverKind::Cg
-                }
-            }
+            SolverKind::Auto => SolverKind::Cg,
             k => k,
         };
         let mut info = SolveInfo {

@@ -12,8 +12,9 @@
 //! Jacobi-preconditioned CG ([`iterative`]) with warm start, and CG preconditioned by a
 //! smoothed-aggregation AMG V-cycle ([`amg`]) whose hierarchy is reused across solves
 //! (values-only refresh, lagged refresh: [`amg::AmgCache`]). [`SolverKind::Auto`] takes
-//! Cholesky for 2D systems up to [`SolveParams::direct_limit`] unknowns and AMG-CG otherwise
-//! (always in 3D, where the Cholesky factor fills in far more).
+//! Cholesky for 2D systems up to [`SolveParams::direct_limit`] unknowns while the factor is
+//! reused, and AMG-CG otherwise (always in 3D, where the Cholesky factor fills in far more, and
+//! once the matrix values change every step).
 
 pub mod amg;
 pub mod assembly;
@@ -44,8 +45,9 @@ pub enum SolverKind {
     /// Conjugate gradients preconditioned by a smoothed-aggregation AMG V-cycle, with warm
     /// start and a reused hierarchy ([`amg`]).
     Amg,
-    /// Cholesky in 2D up to [`SolveParams::direct_limit`] unknowns, AMG-CG otherwise (always
-    /// AMG-CG in 3D).
+    /// Cholesky in 2D up to [`SolveParams::direct_limit`] unknowns while its factor can be
+    /// reused (fixed particles); AMG-CG in 3D, above the limit, and from the second numeric
+    /// refactorisation on (the matrix values change every step: moving particles).
     #[default]
     Auto,
 }
@@ -212,6 +214,8 @@ pub struct PoissonSolver {
     pub amg: AmgCache,
     b: Vec<f64>,
     x: Vec<f64>,
+    /// `Auto`: numeric Cholesky factorisations so far (the first one is always needed).
+    auto_factorisations: u32,
 }
 
 impl PoissonSolver {
@@ -292,7 +296,15 @@ impl PoissonSolver {
         }
         info.assemble_seconds = t0.elapsed().as_secs_f64();
 
-        let kind = params.resolve(D, n);
+        let mut kind = params.resolve(D, n);
+        if params.solver == SolverKind::Auto
+            && kind == SolverKind::Cholesky
+            && self.auto_factorisations >= 2
+        {
+            // the matrix values change from step to step (moving particles): refactorising
+            // costs 7–12x an AMG-CG solve (examples/bench, 2D 10⁴ and 10⁵ moving)
+            kind = SolverKind::Amg;
+        }
         info.solver = kind;
         self.x.resize(n, 0.0);
         match kind {
@@ -311,6 +323,10 @@ impl PoissonSolver {
                 )?;
                 info.reused_symbolic = r.symbolic;
                 info.reused_numeric = r.numeric;
+                // a refactorisation because the values changed (not because reuse is off)
+                if params.solver == SolverKind::Auto && params.reuse_numeric && !r.numeric {
+                    self.auto_factorisations += 1;
+                }
                 info.symbolic_seconds = r.symbolic_seconds;
                 info.numeric_seconds = r.numeric_seconds;
                 info.solve_seconds = r.solve_seconds;
@@ -336,7 +352,9 @@ impl PoissonSolver {
                         info.amg_setup_seconds = h.stats().setup_seconds;
                     }
                     let t = Instant::now();
-                    let r = iterative::pcg_with(
+                    let null: Vec<&[u32]> =
+                        floating.iter().map(|&c| members[c].as_slice()).collect();
+                    let r = iterative::pcg_with_null(
                         a,
                         &self.b,
                         &mut self.x,
@@ -344,6 +362,7 @@ impl PoissonSolver {
                         params.abs_tol,
                         params.max_iters,
                         &mut self.amg.preconditioner(a),
+                        &null,
                     )?;
                     info.solve_seconds = t.elapsed().as_secs_f64();
                     self.amg.record(&r, reuse);
