@@ -298,25 +298,12 @@ pub fn div_renormalised_into<const D: usize>(
         renorm.b.len(),
         out.len()
     );
-    let d = D as f64;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS)
         .enumerate()
         .for_each(|(i, o)| {
-            let pi = psi[i];
-            // g[a][b] = Σ ω_j (ψ_j − ψ_i)_a (x_ji)_b w/r²
-            let mut g = [[0.0; D]; D];
-            for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let c = vol[j] * nl.wr2[k];
-                let dx = &nl.dx[k];
-                for a in 0..D {
-                    let du = c * (psi[j][a] - pi[a]);
-                    for (gab, xb) in g[a].iter_mut().zip(dx) {
-                        *gab += du * xb;
-                    }
-                }
-            }
+            // g[a][b] = (∇h ψ_a)_b
+            let g = crate::operators::grad_vec_row(nl, vol, psi, i);
             let b = &renorm.b[i];
             let mut s = 0.0;
             for a in 0..D {
@@ -324,7 +311,7 @@ pub fn div_renormalised_into<const D: usize>(
                     s += b[a][c] * g[a][c];
                 }
             }
-            *o = d * s;
+            *o = s;
         });
 }
 

@@ -188,6 +188,36 @@ pub fn laplacian_vec<const D: usize>(
     out
 }
 
+/// Row `i` of the velocity gradient by the difference gradient, `G_i[a][b] = (∇h u_a)_b`.
+#[inline]
+pub fn grad_vec_row<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    u: &[[f64; D]],
+    i: usize,
+) -> [[f64; D]; D] {
+    let ui = u[i];
+    let mut s = [[0.0; D]; D];
+    for k in nl.row(i) {
+        let j = nl.indices[k] as usize;
+        let c = vol[j] * nl.wr2[k];
+        let dx = &nl.dx[k];
+        for a in 0..D {
+            let du = c * (u[j][a] - ui[a]);
+            for b in 0..D {
+                s[a][b] += du * dx[b];
+            }
+        }
+    }
+    let d = D as f64;
+    for row in s.iter_mut() {
+        for v in row.iter_mut() {
+            *v *= d;
+        }
+    }
+    s
+}
+
 /// Velocity-gradient tensor by the difference gradient, `G_i[a][b] = (∇h u_a)_b` into `out`.
 pub fn grad_vec_into<const D: usize>(
     nl: &NeighborList<D>,
@@ -195,30 +225,10 @@ pub fn grad_vec_into<const D: usize>(
     u: &[[f64; D]],
     out: &mut [[[f64; D]; D]],
 ) {
-    let d = D as f64;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS)
         .enumerate()
-        .for_each(|(i, o)| {
-            let ui = u[i];
-            let mut s = [[0.0; D]; D];
-            for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let c = vol[j] * nl.wr2[k];
-                let dx = &nl.dx[k];
-                for a in 0..D {
-                    let du = c * (u[j][a] - ui[a]);
-                    for b in 0..D {
-                        s[a][b] += du * dx[b];
-                    }
-                }
-            }
-            for a in 0..D {
-                for b in 0..D {
-                    o[a][b] = d * s[a][b];
-                }
-            }
-        });
+        .for_each(|(i, o)| *o = grad_vec_row(nl, vol, u, i));
 }
 
 /// Interpolant `Πh φ(x_i) = Σ_j ω_j φ_j w_h(r_ij)` at the particles themselves (the self term
