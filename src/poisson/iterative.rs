@@ -74,7 +74,7 @@ fn inv_diagonal(a: &Assembly) -> Vec<f64> {
         .collect()
 }
 
-fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
+pub(crate) fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
     let mut kx = vec![0.0; a.n()];
     a.spmv(x, &mut kx);
     kx.par_iter()
@@ -82,6 +82,27 @@ fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
         .map(|(k, b)| (b - k) * (b - k))
         .sum::<f64>()
         .sqrt()
+}
+
+/// The report of a converged CG run: the true residual `‖b − Kx‖` (not the recursive one)
+/// beside the recursive initial and final residuals.
+fn converged(
+    a: &Assembly,
+    b: &[f64],
+    x: &[f64],
+    bnorm: f64,
+    iters: usize,
+    r0: f64,
+    rnorm: f64,
+) -> CgInfo {
+    let true_r = true_residual(a, b, x);
+    CgInfo {
+        iters,
+        abs_residual: true_r,
+        rel_residual: true_r / bnorm,
+        initial_residual: r0,
+        final_residual: rnorm,
+    }
 }
 
 /// `q = K p`, returning `p·q`, in one pass.
@@ -232,14 +253,7 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
             )));
         }
     }
-    let true_r = true_residual(a, b, x);
-    Ok(CgInfo {
-        iters,
-        abs_residual: true_r,
-        rel_residual: true_r / bnorm,
-        initial_residual: r0,
-        final_residual: rnorm,
-    })
+    Ok(converged(a, b, x, bnorm, iters, r0, rnorm))
 }
 
 /// Jacobi-preconditioned CG from the initial guess in `x`.
@@ -318,13 +332,5 @@ pub fn pcg(
             )));
         }
     }
-    // report the true residual, not the recursive one
-    let true_r = true_residual(a, b, x);
-    Ok(CgInfo {
-        iters,
-        abs_residual: true_r,
-        rel_residual: true_r / bnorm,
-        initial_residual: r0,
-        final_residual: rnorm,
-    })
+    Ok(converged(a, b, x, bnorm, iters, r0, rnorm))
 }
