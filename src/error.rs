@@ -1,5 +1,13 @@
 //! Typed errors, one enum per stage, each carrying the evidence (particle ids, residuals, values).
+//!
+//! This module depends on nothing else in the crate (only on `std`, `thiserror` and the error
+//! types of `mcap` and `serde_json`), so every module may use it. [`DtLimit`] lives here because
+//! [`StabilityError::TimeStepTooLarge`] names it; it is re-exported by [`crate::time`] and
+//! [`crate::flow`]. [`RecordError`] is re-exported by [`crate::record`].
 
+use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
+use std::path::PathBuf;
 use thiserror::Error;
 
 /// Bad particle data or parameters, found before any computation uses them.
@@ -52,8 +60,10 @@ pub enum InputError {
     /// A parameter outside its valid range.
     #[error("parameter '{name}' = {value}: {reason}")]
     Parameter {
-        /// Parameter name.
-        name: &'static str,
+        /// The parameter's key path, dot-separated as in a configuration file
+        /// (`solve.abs_tol`, `limits.guard.energy_growth`, `h`); see [`InputError::parameter`]
+        /// and [`InputError::under`].
+        name: Cow<'static, str>,
         /// Its value.
         value: f64,
         /// What is wrong.
@@ -105,6 +115,77 @@ pub enum InputError {
         /// Which bound it violates.
         reason: String,
     },
+}
+
+impl InputError {
+    /// A [`InputError::Parameter`] naming the key path `name` (a `&'static str` or a `String`).
+    pub fn parameter(
+        name: impl Into<Cow<'static, str>>,
+        value: f64,
+        reason: impl Into<String>,
+    ) -> Self {
+        InputError::Parameter {
+            name: name.into(),
+            value,
+            reason: reason.into(),
+        }
+    }
+
+    /// Puts a [`InputError::Parameter`]'s key path under `prefix`: `solve.abs_tol` becomes
+    /// `projection.solve.abs_tol` with `prefix = "projection"`. Other errors are returned
+    /// unchanged. A validator of a type held in a field of another calls this with the field's
+    /// name, so the key names the entry from the outermost parameter set.
+    pub fn under(self, prefix: &str) -> Self {
+        match self {
+            InputError::Parameter {
+                name,
+                value,
+                reason,
+            } if !prefix.is_empty() => InputError::Parameter {
+                name: Cow::Owned(format!("{prefix}.{name}")),
+                value,
+                reason,
+            },
+            other => other,
+        }
+    }
+
+    /// The key path of a [`InputError::Parameter`], `None` for the other variants.
+    pub fn parameter_name(&self) -> Option<&str> {
+        match self {
+            InputError::Parameter { name, .. } => Some(name),
+            _ => None,
+        }
+    }
+}
+
+/// Which limit set the time step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DtLimit {
+    /// Advective CFL.
+    #[default]
+    Cfl,
+    /// Explicit viscous stability.
+    Viscous,
+    /// Body force.
+    Force,
+    /// `dt_max`.
+    Max,
+    /// A fixed step.
+    Fixed,
+}
+
+impl std::fmt::Display for DtLimit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            DtLimit::Cfl => "CFL",
+            DtLimit::Viscous => "explicit viscous",
+            DtLimit::Force => "body-force",
+            DtLimit::Max => "dt_max",
+            DtLimit::Fixed => "fixed",
+        })
+    }
 }
 
 /// Failure of the linear solve.
@@ -160,12 +241,12 @@ pub struct ConnectivityError {
     pub isolated: usize,
 }
 
-/// A run going unstable, detected by the checks of [`crate::flow::StabilityGuard`] (all off by
+/// A run going unstable, detected by the checks of [`crate::time::StabilityGuard`] (all off by
 /// default) before it turns into a blow-up: each names the step, the quantity and where.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum StabilityError {
     /// The time step of step `step` exceeds `factor` times one of the stability limits of
-    /// [`crate::flow::TimeStepLimits`] (CFL, explicit viscous, body force).
+    /// [`crate::time::TimeStepLimits`] (CFL, explicit viscous, body force).
     #[error(
         "step {step}: time step dt = {dt:e} exceeds the {limit} limit {bound:e} \
          ({:.3} times it, allowed {factor}); lower limits.dt_fixed / limits.dt_max",
@@ -177,7 +258,7 @@ pub enum StabilityError {
         /// The time step.
         dt: f64,
         /// Which limit it exceeds (the smallest one).
-        limit: crate::flow::DtLimit,
+        limit: DtLimit,
         /// The limit's value.
         bound: f64,
         /// The allowed multiple of the limit.
@@ -210,6 +291,79 @@ pub enum StabilityError {
     },
 }
 
+/// Recording and replay failures; each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    /// Creating, writing or reading the file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The MCAP writer or a record parser failed.
+    #[error("{}: MCAP: {source}", path.display())]
+    Mcap {
+        /// The file.
+        path: PathBuf,
+        /// The mcap crate's error.
+        source: mcap::McapError,
+    },
+    /// A message could not be encoded or decoded.
+    #[error("{}: {what}: {source}", path.display())]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// Which message (topic and step).
+        what: String,
+        /// The serde error.
+        source: serde_json::Error,
+    },
+    /// The file is not an MCAP file at all.
+    #[error("{}: not an MCAP file: {reason}", path.display())]
+    NotMcap {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+    /// The file is MCAP but its content is not what gpm writes (or a later format).
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A recorded description (boundary, parameters, arrays) cannot be turned back into the
+    /// crate's types.
+    #[error("recorded {what}: {reason}")]
+    Spec {
+        /// Which part.
+        what: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Re-running a recorded projection failed.
+    #[error("{}: re-running the projection of step {step} failed: {source}", path.display())]
+    Rerun {
+        /// The file.
+        path: PathBuf,
+        /// The recorded step.
+        step: u64,
+        /// The projection's error.
+        source: Box<Error>,
+    },
+    /// The run was stopped on request (Ctrl-C) after this step; the observer returns it to end
+    /// the run early, and the caller still finishes the file.
+    #[error("run interrupted after step {step}")]
+    Interrupted {
+        /// Last step completed.
+        step: u64,
+    },
+}
+
 /// The crate's error: one variant per stage.
 #[derive(Debug, Error)]
 pub enum Error {
@@ -222,12 +376,12 @@ pub enum Error {
     /// The Poisson solve failed.
     #[error(transparent)]
     Solve(#[from] SolveError),
-    /// A run became unstable (see [`crate::flow::StabilityGuard`]).
+    /// A run became unstable (see [`crate::time::StabilityGuard`]).
     #[error(transparent)]
     Stability(#[from] StabilityError),
     /// Recording or replaying a run failed (or the run was interrupted on request).
     #[error(transparent)]
-    Record(#[from] crate::record::RecordError),
+    Record(#[from] RecordError),
 }
 
 /// `Result` with the crate's [`Error`].

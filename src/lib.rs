@@ -76,5 +76,6 @@ pub mod record;
 pub mod reference;
 pub mod sampling;
 pub mod scene;
+pub mod time;
 
 pub use error::{Error, Result};

@@ -128,21 +128,21 @@ impl<const D: usize> NeighborConfig<D> {
     pub fn validate(&self) -> Result<(), InputError> {
         if !(self.h > 0.0) || !self.h.is_finite() {
             return Err(InputError::Parameter {
-                name: "h",
+                name: "h".into(),
                 value: self.h,
                 reason: "the influence radius must be positive and finite".into(),
             });
         }
         if !(self.skin >= 0.0) || !self.skin.is_finite() {
             return Err(InputError::Parameter {
-                name: "skin",
+                name: "skin".into(),
                 value: self.skin,
                 reason: "the skin must be non-negative and finite".into(),
             });
         }
         if let Err(reason) = self.weight.validate() {
             return Err(InputError::Parameter {
-                name: "weight",
+                name: "weight".into(),
                 value: f64::NAN,
                 reason,
             });
@@ -353,7 +353,7 @@ impl<const D: usize> NeighborList<D> {
         if n > 0 {
             let tree: ImmutableKdTree<f64, D> =
                 ImmutableKdTree::new_from_slice(&xw).map_err(|e| InputError::Parameter {
-                    name: "positions",
+                    name: "positions".into(),
                     value: n as f64,
                     reason: format!("k-d tree construction failed: {e:?}"),
                 })?;

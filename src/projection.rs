@@ -132,7 +132,7 @@ impl<const D: usize> ProjectionParams<D> {
     pub fn validate(&self) -> Result<(), InputError> {
         let bad = |name: &'static str, value: f64, reason: &str| {
             Err(InputError::Parameter {
-                name,
+                name: name.into(),
                 value,
                 reason: reason.into(),
             })
@@ -157,14 +157,7 @@ impl<const D: usize> ProjectionParams<D> {
         if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
             return bad("gravity", *g, "the body force must be finite");
         }
-        if !(self.solve.rel_tol >= 0.0) || !(self.solve.abs_tol >= 0.0) {
-            return bad(
-                "solve.rel_tol",
-                self.solve.rel_tol,
-                "tolerances must be non-negative",
-            );
-        }
-        Ok(())
+        self.solve.validate()
     }
 }
 
@@ -236,7 +229,7 @@ fn role_fingerprint(role: &[crate::particles::Role]) -> u64 {
 fn check_dt(dt: f64) -> Result<(), InputError> {
     if !(dt > 0.0 && dt.is_finite()) {
         return Err(InputError::Parameter {
-            name: "dt",
+            name: "dt".into(),
             value: dt,
             reason: "the time step must be positive and finite".into(),
         });

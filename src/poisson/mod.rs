@@ -23,7 +23,7 @@ pub mod helmholtz;
 pub mod iterative;
 
 use crate::diagnostics::{alias, Components};
-use crate::error::SolveError;
+use crate::error::{InputError, SolveError};
 use crate::neighbors::NeighborList;
 use crate::particles::Role;
 use serde::{Deserialize, Serialize};
@@ -117,6 +117,39 @@ pub struct SolveParams {
 }
 
 impl SolveParams {
+    /// Checks the tolerances `rel_tol` and `abs_tol` (non-negative and finite), `max_iters`
+    /// (at least 1) and `amg_lag_factor` (positive and finite), naming the first bad one by its
+    /// key under `solve` (`solve.abs_tol`) and its value.
+    pub fn validate(&self) -> Result<(), InputError> {
+        for (name, v) in [
+            ("solve.rel_tol", self.rel_tol),
+            ("solve.abs_tol", self.abs_tol),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(InputError::parameter(
+                    name,
+                    v,
+                    "a tolerance must be non-negative and finite",
+                ));
+            }
+        }
+        if self.max_iters == 0 {
+            return Err(InputError::parameter(
+                "solve.max_iters",
+                0.0,
+                "at least one iteration is needed",
+            ));
+        }
+        if !(self.amg_lag_factor > 0.0 && self.amg_lag_factor.is_finite()) {
+            return Err(InputError::parameter(
+                "solve.amg_lag_factor",
+                self.amg_lag_factor,
+                "the lag threshold must be positive and finite",
+            ));
+        }
+        Ok(())
+    }
+
     /// The AMG reuse switches of these parameters.
     pub fn amg_reuse(&self) -> AmgReuse {
         AmgReuse {

@@ -125,78 +125,7 @@ impl ChunkCompression {
     }
 }
 
-/// Recording and replay failures; each names the file.
-#[derive(Debug, thiserror::Error)]
-pub enum RecordError {
-    /// Creating, writing or reading the file failed.
-    #[error("{}: {source}", path.display())]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
-    },
-    /// The MCAP writer or a record parser failed.
-    #[error("{}: MCAP: {source}", path.display())]
-    Mcap {
-        /// The file.
-        path: PathBuf,
-        /// The mcap crate's error.
-        source: mcap::McapError,
-    },
-    /// A message could not be encoded or decoded.
-    #[error("{}: {what}: {source}", path.display())]
-    Json {
-        /// The file.
-        path: PathBuf,
-        /// Which message (topic and step).
-        what: String,
-        /// The serde error.
-        source: serde_json::Error,
-    },
-    /// The file is not an MCAP file at all.
-    #[error("{}: not an MCAP file: {reason}", path.display())]
-    NotMcap {
-        /// The file.
-        path: PathBuf,
-        /// Why.
-        reason: String,
-    },
-    /// The file is MCAP but its content is not what gpm writes (or a later format).
-    #[error("{}: {message}", path.display())]
-    Format {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        message: String,
-    },
-    /// A recorded description (boundary, parameters, arrays) cannot be turned back into the
-    /// crate's types.
-    #[error("recorded {what}: {reason}")]
-    Spec {
-        /// Which part.
-        what: &'static str,
-        /// What is wrong.
-        reason: String,
-    },
-    /// Re-running a recorded projection failed.
-    #[error("{}: re-running the projection of step {step} failed: {source}", path.display())]
-    Rerun {
-        /// The file.
-        path: PathBuf,
-        /// The recorded step.
-        step: u64,
-        /// The projection's error.
-        source: Box<crate::Error>,
-    },
-    /// The run was stopped on request (Ctrl-C) after this step; the observer returns it to end
-    /// the run early, and the caller still finishes the file.
-    #[error("run interrupted after step {step}")]
-    Interrupted {
-        /// Last step completed.
-        step: u64,
-    },
-}
+pub use crate::error::RecordError;
 
 impl RecordError {
     pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {

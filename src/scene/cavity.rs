@@ -155,7 +155,7 @@ impl CavityConfig {
     pub fn validate(&self) -> Result<(), InputError> {
         let bad = |name: &'static str, value: f64, reason: &str| {
             Err(InputError::Parameter {
-                name,
+                name: name.into(),
                 value,
                 reason: reason.into(),
             })

@@ -76,7 +76,7 @@ pub(crate) fn validate_common(
 ) -> Result<(), InputError> {
     let bad = |name: &'static str, value: f64, reason: &str| {
         Err(InputError::Parameter {
-            name,
+            name: name.into(),
             value,
             reason: reason.into(),
         })

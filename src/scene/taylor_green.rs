@@ -96,7 +96,7 @@ impl TaylorGreenConfig {
     pub fn validate(&self) -> Result<(), InputError> {
         let bad = |name: &'static str, value: f64, reason: &str| {
             Err(InputError::Parameter {
-                name,
+                name: name.into(),
                 value,
                 reason: reason.into(),
             })

@@ -14,172 +14,25 @@
 //!    corrects their velocity and pressure to the new position by a first-order Taylor
 //!    expansion (Xu et al. 2009), `u_i += (δx_i·∇h) u_i`.
 
+//!
+//! Time-step control and the stability guards are in [`crate::time`] (re-exported here), the
+//! convective term in [`convection`], shifting in [`shifting`].
+
+pub mod convection;
+pub mod shifting;
+
 use crate::boundary::{Boundary, VectorKind};
-use crate::error::{Error, InputError, StabilityError};
+use crate::error::{Error, InputError};
 use crate::geometry::number_density_volumes;
-use crate::math::norm2;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
-use crate::operators::{grad_diff_into, grad_vec_into};
 use crate::particles::Particles;
 use crate::projection::{ProjectionParams, ProjectionStep, StepReport};
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-/// Limits on the time step. `Δt = min(dt_max, cfl·h/U, visc/(ν λ), force·√(h/|g|))` where `U` is
-/// the larger of the maximum speed and `u_ref`, and `λ = max_i 2d Σ_j ω_j w_h/r²` is the
-/// Gershgorin bound of `−Δh`'s spectrum divided by 2 (forward Euler on `ν Δh u` is stable for
-/// `visc ≤ 1`).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct TimeStepLimits {
-    /// CFL number on `h / U` (default 0.2).
-    pub cfl: f64,
-    /// Fraction of the explicit viscous stability limit (default 0.5).
-    pub visc: f64,
-    /// Factor on `√(h/|g|)` (default 0.25).
-    pub force: f64,
-    /// Reference speed: the CFL limit never assumes a speed below it (default 1).
-    pub u_ref: f64,
-    /// Upper bound on `Δt` (default none).
-    pub dt_max: Option<f64>,
-    /// A fixed `Δt`, overriding the limits (it is checked against them, and the exceeded limit
-    /// named, when `guard.dt_over_limit` is set).
-    pub dt_fixed: Option<f64>,
-    /// Checks that stop a run going unstable with a named error (default: all off).
-    pub guard: StabilityGuard,
-}
-
-impl Default for TimeStepLimits {
-    fn default() -> Self {
-        TimeStepLimits {
-            cfl: 0.2,
-            visc: 0.5,
-            force: 0.25,
-            u_ref: 1.0,
-            dt_max: None,
-            dt_fixed: None,
-            guard: StabilityGuard::default(),
-        }
-    }
-}
-
-impl TimeStepLimits {
-    /// Checks the factors (positive and finite), `u_ref` (non-negative, finite), `dt_max` and
-    /// `dt_fixed` (positive and finite when set) and the guard, naming the first bad one.
-    pub fn validate(&self) -> Result<(), InputError> {
-        let bad = |name: &'static str, value: f64, reason: &str| {
-            Err(InputError::Parameter {
-                name,
-                value,
-                reason: reason.into(),
-            })
-        };
-        for (name, v) in [
-            ("limits.cfl", self.cfl),
-            ("limits.visc", self.visc),
-            ("limits.force", self.force),
-        ] {
-            if !(v > 0.0 && v.is_finite()) {
-                return bad(name, v, "time-step factors must be positive and finite");
-            }
-        }
-        if !(self.u_ref >= 0.0 && self.u_ref.is_finite()) {
-            return bad(
-                "limits.u_ref",
-                self.u_ref,
-                "the reference speed must be non-negative and finite",
-            );
-        }
-        for (name, v) in [
-            ("limits.dt_max", self.dt_max),
-            ("limits.dt_fixed", self.dt_fixed),
-        ] {
-            if let Some(v) = v {
-                if !(v > 0.0 && v.is_finite()) {
-                    return bad(name, v, "a time step must be positive and finite");
-                }
-            }
-        }
-        let g = &self.guard;
-        if !(g.energy_floor >= 0.0 && g.energy_floor.is_finite()) {
-            return bad(
-                "limits.guard.energy_floor",
-                g.energy_floor,
-                "the energy floor must be non-negative and finite",
-            );
-        }
-        for (name, v) in [
-            ("limits.guard.dt_over_limit", g.dt_over_limit),
-            ("limits.guard.energy_growth", g.energy_growth),
-            ("limits.guard.speed_over_ref", g.speed_over_ref),
-            ("limits.guard.stability_ratio", g.stability_ratio),
-        ] {
-            if let Some(v) = v {
-                if v.is_nan() || v <= 0.0 {
-                    return bad(name, v, "a guard bound must be positive");
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// Checks that turn a run going unstable into a [`StabilityError`] naming the step, the
-/// quantity and the fastest particle, instead of a blow-up (non-finite values, particles
-/// flung through walls, a failed solve). Every check is off by default (`None`).
-///
-/// The time-step check runs before a step and names the exceeded limit (the guard of a fixed
-/// `Δt`); the others run after it, on the step's report. The stress example
-/// (`examples/stress.rs`) measures what each catches.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct StabilityGuard {
-    /// Fail before a step whose `Δt` exceeds this multiple of the smallest of the CFL, explicit
-    /// viscous and body-force limits ([`Simulation::dt_bound`]); 1 enforces the limits.
-    pub dt_over_limit: Option<f64>,
-    /// Fail when the kinetic energy grows by more than this factor in one step, checked when
-    /// the previous step's energy exceeds `energy_floor`.
-    pub energy_growth: Option<f64>,
-    /// Energy below which `energy_growth` is not checked (default 0). A flow started from rest
-    /// (the cavity) multiplies its energy by about 4 from the first step to the second: a floor
-    /// of 10⁻³ of `½ρU²|Ω|` lets the spin-up pass.
-    pub energy_floor: f64,
-    /// Fail when the largest fluid speed exceeds this multiple of `limits.u_ref`.
-    pub speed_over_ref: Option<f64>,
-    /// Fail when the Theorem 4.5 ratio of a step exceeds this (the theory bounds it by 1 with
-    /// the mirror source continuation).
-    pub stability_ratio: Option<f64>,
-}
-
-/// Which limit set the time step.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DtLimit {
-    /// Advective CFL.
-    #[default]
-    Cfl,
-    /// Explicit viscous stability.
-    Viscous,
-    /// Body force.
-    Force,
-    /// `dt_max`.
-    Max,
-    /// A fixed step.
-    Fixed,
-}
-
-impl std::fmt::Display for DtLimit {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            DtLimit::Cfl => "CFL",
-            DtLimit::Viscous => "explicit viscous",
-            DtLimit::Force => "body-force",
-            DtLimit::Max => "dt_max",
-            DtLimit::Fixed => "fixed",
-        })
-    }
-}
+pub use crate::time::{DtLimit, StabilityGuard, TimeStepLimits};
+pub use convection::{Convection, Integrator};
+pub use shifting::Shifting;
 
 /// Frame of the particles.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -201,57 +54,6 @@ impl std::str::FromStr for Motion {
             _ => Err(format!(
                 "unknown motion '{s}': expected lagrangian or eulerian"
             )),
-        }
-    }
-}
-
-/// Time integration of the explicit terms of the predictor (convection in the Eulerian frame).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Integrator {
-    /// Forward Euler (first order).
-    Euler,
-    /// Second-order Adams–Bashforth with variable-step coefficients (forward Euler on the first
-    /// step). With Crank–Nicolson viscosity (`viscous_theta = ½`) and an incremental pressure
-    /// scheme the step is second order in time.
-    #[default]
-    Ab2,
-}
-
-impl std::str::FromStr for Integrator {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "euler" => Ok(Integrator::Euler),
-            "ab2" => Ok(Integrator::Ab2),
-            _ => Err(format!("unknown integrator '{s}': expected euler or ab2")),
-        }
-    }
-}
-
-/// Fickian particle shifting (Lagrangian frame only).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct Shifting {
-    /// `A` in `δx = −A h |u| Δt ∇C` (default 2).
-    pub coefficient: f64,
-    /// Largest shift per step as a fraction of the particle spacing (default 0.2).
-    pub max_fraction: f64,
-    /// Correct velocity and pressure to the shifted position (default true).
-    pub correct: bool,
-    /// Scale the shift by the global maximum speed instead of the particle's own speed, so that
-    /// stagnation regions (where the strain deforms the distribution most) are shifted too
-    /// (default true).
-    pub global_speed: bool,
-}
-
-impl Default for Shifting {
-    fn default() -> Self {
-        Shifting {
-            coefficient: 2.0,
-            max_fraction: 0.2,
-            correct: true,
-            global_speed: true,
         }
     }
 }
@@ -284,6 +86,30 @@ pub struct FlowParams<const D: usize> {
     pub volumes: VolumeRule,
     /// Initial particle spacing `Δx` (for shift limits).
     pub dx: f64,
+}
+
+impl<const D: usize> FlowParams<D> {
+    /// Checks every parameter, naming the first bad one by its key path in this struct:
+    /// `projection.*` ([`ProjectionParams::validate`], e.g. `projection.solve.abs_tol`),
+    /// `limits.*` ([`TimeStepLimits::validate`]), `shifting.*` ([`Shifting::validate`]) and
+    /// `dx` (positive and finite).
+    pub fn validate(&self) -> Result<(), InputError> {
+        self.projection
+            .validate()
+            .map_err(|e| e.under("projection"))?;
+        self.limits.validate()?;
+        if let Some(s) = &self.shifting {
+            s.validate()?;
+        }
+        if !(self.dx > 0.0 && self.dx.is_finite()) {
+            return Err(InputError::parameter(
+                "dx",
+                self.dx,
+                "the particle spacing must be positive and finite",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// A stage of a flow step. A [`StagePlan`] lists the stages a scene needs; the others never run.
@@ -405,6 +231,10 @@ pub struct FlowReport {
     pub dt_ratio: f64,
 }
 
+/// A step of [`Simulation::advance_to`] that falls short of the end time by at most this
+/// fraction of itself is stretched to land on it, rather than leave a sliver of a step.
+const LAND_TOLERANCE: f64 = 1e-9;
+
 /// A running flow.
 pub struct Simulation<const D: usize, B: Boundary<D>> {
     /// Particle state (fluid, Dirichlet band, then ghosts).
@@ -422,11 +252,11 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     /// Steps taken.
     pub steps: u64,
     plan: StagePlan,
-    grad: Vec<[[f64; D]; D]>,
+    /// The convective acceleration of the current step (Eulerian frame).
     work: Vec<[f64; D]>,
-    gp: Vec<[f64; D]>,
+    shift_scratch: shifting::ShiftScratch<D>,
     stale: bool,
-    conv_prev: Option<(Vec<[f64; D]>, f64)>,
+    convection: Convection<D>,
     /// Kinetic energy after the last step (for `guard.energy_growth`).
     prev_energy: Option<f64>,
 }
@@ -441,17 +271,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         neighbors: NeighborConfig<D>,
         params: FlowParams<D>,
     ) -> Result<Self, Error> {
-        params.projection.validate()?;
-        if !(params.dx > 0.0 && params.dx.is_finite()) {
-            return Err(InputError::Parameter {
-                name: "dx",
-                value: params.dx,
-                reason: "the particle spacing must be positive and finite".into(),
-            }
-            .into());
-        }
+        params.validate()?;
         particles.validate()?;
-        params.limits.validate()?;
         // a fluid particle outside the domain is an input error, not a later blow-up
         boundary.confine(&mut particles)?;
         let mut config = neighbors.with_periodicity(boundary.periodicity());
@@ -492,11 +313,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             time: 0.0,
             steps: 0,
             plan,
-            grad: Vec::new(),
             work: Vec::new(),
-            gp: Vec::new(),
+            shift_scratch: Default::default(),
             stale: false,
-            conv_prev: None,
+            convection: Convection::new(),
             prev_energy: None,
         };
         sim.update_volumes();
@@ -554,78 +374,30 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
 
     /// The time step for the current state, and the limit that set it.
     pub fn time_step(&self) -> (f64, DtLimit) {
-        self.time_step_with(&self.params.limits)
-    }
-
-    fn time_step_with(&self, l: &TimeStepLimits) -> (f64, DtLimit) {
-        let h = self.nl.h();
-        let p = &self.particles;
-        let umax =
-            p.u.iter()
-                .zip(&p.role)
-                .filter(|(_, r)| r.is_fluid())
-                .map(|(u, _)| norm2(u))
-                .fold(0.0f64, f64::max)
-                .sqrt();
-        let mut dt = l.dt_max.unwrap_or(f64::INFINITY);
-        let mut which = DtLimit::Max;
-        let cfl = l.cfl * h / umax.max(l.u_ref);
-        if cfl < dt {
-            dt = cfl;
-            which = DtLimit::Cfl;
-        }
-        let nu = self.params.projection.nu;
-        let theta = self.params.projection.viscous_theta;
-        if nu > 0.0 && theta < 0.5 {
-            // θ-scheme on ν Δh: stable for Δt ν λ_max (1 − 2θ) ≤ 2, λ_max ≤ 2λ (Gershgorin)
-            let lam = self.viscous_eigen_bound();
-            let v = l.visc / (nu * lam * (1.0 - 2.0 * theta));
-            if v < dt {
-                dt = v;
-                which = DtLimit::Viscous;
-            }
-        }
-        let g = norm2(&self.params.projection.gravity).sqrt();
-        if g > 0.0 {
-            let f = l.force * (h / g).sqrt();
-            if f < dt {
-                dt = f;
-                which = DtLimit::Force;
-            }
-        }
-        if let Some(fixed) = l.dt_fixed {
-            return (fixed, DtLimit::Fixed);
-        }
-        (dt, which)
+        crate::time::time_step(
+            &self.particles,
+            &self.nl,
+            &self.params.projection,
+            &self.params.limits,
+        )
     }
 
     /// `max_i 2d Σ_j ω_j w_h/r²` over fluid rows: half the Gershgorin bound on the spectrum of
     /// `−Δh` (so forward Euler on `ν Δh u` is stable for `ν Δt λ ≤ 1`).
     pub fn viscous_eigen_bound(&self) -> f64 {
-        let nl = &self.nl;
-        let p = &self.particles;
-        let c = 2.0 * D as f64;
-        (0..nl.len())
-            .into_par_iter()
-            .filter(|&i| p.role[i].is_fluid())
-            .map(|i| {
-                c * nl
-                    .row(i)
-                    .map(|k| p.vol[nl.indices[k] as usize] * nl.wr2[k])
-                    .sum::<f64>()
-            })
-            .reduce(|| 0.0, f64::max)
+        crate::time::viscous_eigen_bound(&self.particles, &self.nl)
     }
 
     /// The smallest of the stability limits on `Δt` for the current state (CFL, explicit
     /// viscous, body force, as in [`time_step`](Self::time_step) but without `dt_max` and a fixed
     /// step) and which one it is; `∞` (with [`DtLimit::Max`]) when none applies.
     pub fn dt_bound(&self) -> (DtLimit, f64) {
-        let mut limits = self.params.limits;
-        limits.dt_max = None;
-        limits.dt_fixed = None;
-        let (dt, which) = self.time_step_with(&limits);
-        (which, dt)
+        crate::time::dt_bound(
+            &self.particles,
+            &self.nl,
+            &self.params.projection,
+            &self.params.limits,
+        )
     }
 
     /// Advances one step.
@@ -635,6 +407,57 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
     /// refreshed, projection at `x*` (so the divergence is removed on the configuration the
     /// particles occupy, as in Cummins & Rudman 1999), then shifting.
     pub fn advance(&mut self) -> Result<FlowReport, Error> {
+        self.advance_inner(None)
+    }
+
+    /// Advances one step that ends at time `t` at the latest: the step of
+    /// [`advance`](Self::advance), shortened to `t − time` when its `Δt` would pass `t` (or fall
+    /// short of it by at most 10⁻⁹ `Δt`, so that no sliver of a step is left), in which case the
+    /// time after the step is exactly `t` and the report names [`DtLimit::Fixed`].
+    /// `params.limits` is not changed. Fails when `t` is not finite or not after the current time.
+    ///
+    /// A loop that looks at every step: `while sim.time < t { let r = sim.advance_toward(t)?; … }`.
+    pub fn advance_toward(&mut self, t: f64) -> Result<FlowReport, Error> {
+        if !(t.is_finite() && t > self.time) {
+            return Err(InputError::parameter(
+                "t",
+                t,
+                format!(
+                    "the end time must be finite and after the current time {}",
+                    self.time
+                ),
+            )
+            .into());
+        }
+        self.advance_inner(Some(t))
+    }
+
+    /// Advances until the time is exactly `t` (the last step shortened as in
+    /// [`advance_toward`](Self::advance_toward); a fixed `Δt` that divides the interval lands
+    /// too) and returns the last step's report, `None` when the time already is `t`. Fails when
+    /// `t` is not finite or before the current time, and with the first failing step's error.
+    pub fn advance_to(&mut self, t: f64) -> Result<Option<FlowReport>, Error> {
+        if !(t.is_finite() && t >= self.time) {
+            return Err(InputError::parameter(
+                "t",
+                t,
+                format!(
+                    "the end time must be finite and not before the current time {}",
+                    self.time
+                ),
+            )
+            .into());
+        }
+        let mut last = None;
+        while self.time < t {
+            last = Some(self.advance_inner(Some(t))?);
+        }
+        Ok(last)
+    }
+
+    /// One step; with `until = Some(t)` shortened to end at `t` (see
+    /// [`advance_toward`](Self::advance_toward)).
+    fn advance_inner(&mut self, until: Option<f64>) -> Result<FlowReport, Error> {
         let t0 = Instant::now();
         let mut rebuilt = false;
         if self.stale {
@@ -643,21 +466,22 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         let mut neighbors_seconds = t0.elapsed().as_secs_f64();
         check_state(&self.particles, &self.nl)?;
-        let (dt, dt_limit) = self.time_step();
+        let (mut dt, mut dt_limit) = self.time_step();
+        // the last step of advance_to(t): shortened (or stretched by a rounding sliver) to land
+        let land = until.filter(|&t| {
+            let remaining = t - self.time;
+            dt > remaining || remaining - dt <= LAND_TOLERANCE * dt
+        });
+        if let Some(t) = land {
+            dt = t - self.time;
+            dt_limit = DtLimit::Fixed;
+        }
         let (bound_limit, bound) = self.dt_bound();
         let dt_ratio = if bound.is_finite() { dt / bound } else { 0.0 };
-        if let Some(factor) = self.params.limits.guard.dt_over_limit {
-            if dt > factor * bound {
-                return Err(StabilityError::TimeStepTooLarge {
-                    step: self.steps + 1,
-                    dt,
-                    limit: bound_limit,
-                    bound,
-                    factor,
-                }
-                .into());
-            }
-        }
+        self.params
+            .limits
+            .guard
+            .check_dt(self.steps + 1, dt, bound_limit, bound)?;
         let n = self.particles.len();
         let lagrangian = self.plan.has(Stage::Advection);
         let accel = if self.plan.has(Stage::Convection) {
@@ -669,38 +493,14 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                     VectorKind::Velocity,
                 );
             }
-            self.grad.resize(n, [[0.0; D]; D]);
-            grad_vec_into(
+            self.convection.accel_into(
                 &self.nl,
                 &self.particles.vol,
                 &self.particles.u,
-                &mut self.grad,
+                self.params.integrator,
+                dt,
+                &mut self.work,
             );
-            let mut conv: Vec<[f64; D]> = vec![[0.0; D]; n];
-            let u = &self.particles.u;
-            conv.par_iter_mut()
-                .zip(self.grad.par_iter())
-                .zip(u.par_iter())
-                .for_each(|((a, g), ui)| {
-                    *a = std::array::from_fn(|k| (0..D).map(|b| g[k][b] * ui[b]).sum::<f64>());
-                });
-            self.work.resize(n, [0.0; D]);
-            match (&self.conv_prev, self.params.integrator) {
-                (Some((prev, dt_prev)), Integrator::Ab2) if prev.len() == n => {
-                    let r = dt / dt_prev;
-                    let (c1, c0) = (1.0 + 0.5 * r, 0.5 * r);
-                    for i in 0..n {
-                        self.work[i] =
-                            std::array::from_fn(|k| -(c1 * conv[i][k] - c0 * prev[i][k]));
-                    }
-                }
-                _ => {
-                    for i in 0..n {
-                        self.work[i] = conv[i].map(|v| -v);
-                    }
-                }
-            }
-            self.conv_prev = Some((conv, dt));
             Some(&self.work[..])
         } else {
             None
@@ -743,15 +543,36 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let mut max_shift = 0.0;
         if self.plan.has(Stage::Shifting) {
             let t1 = Instant::now();
-            max_shift = self.shift(dt)?;
+            if let Some(sh) = self.params.shifting {
+                max_shift = shifting::shift(
+                    &sh,
+                    self.params.dx,
+                    dt,
+                    &mut self.particles,
+                    &self.nl,
+                    &self.boundary,
+                    self.plan.has(Stage::Ghosts),
+                    &mut self.shift_scratch,
+                )?;
+            }
             if max_shift > 0.0 {
                 self.stale = true;
             }
             advect_seconds += t1.elapsed().as_secs_f64();
         }
         self.time += dt;
+        if let Some(t) = land {
+            self.time = t;
+        }
         self.steps += 1;
-        self.check_guard(&report)?;
+        self.params.limits.guard.check_report(
+            &report,
+            self.params.limits.u_ref,
+            &mut self.prev_energy,
+            &self.particles,
+            self.steps,
+            self.time,
+        )?;
         Ok(FlowReport {
             step: self.steps,
             time: self.time,
@@ -763,138 +584,6 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             projection: report,
             dt_ratio,
         })
-    }
-
-    /// The after-step checks of `limits.guard` on the step's report (see [`StabilityGuard`]).
-    fn check_guard(&mut self, report: &StepReport) -> Result<(), StabilityError> {
-        let g = self.params.limits.guard;
-        let ke = report.kinetic_energy;
-        let prev = self.prev_energy.replace(ke);
-        let u_ref = self.params.limits.u_ref;
-        let failed = match prev {
-            Some(e0)
-                if e0 > 0.0
-                    && e0 >= g.energy_floor
-                    && g.energy_growth.is_some_and(|f| ke > f * e0) =>
-            {
-                Some(("kinetic energy growth", ke / e0, g.energy_growth))
-            }
-            _ => None,
-        }
-        .or_else(|| {
-            g.speed_over_ref
-                .filter(|&f| report.max_speed > f * u_ref)
-                .map(|f| ("max speed / u_ref", report.max_speed / u_ref, Some(f)))
-        })
-        .or_else(|| {
-            g.stability_ratio
-                .filter(|&f| report.stability_ratio > f)
-                .map(|f| ("Theorem 4.5 ratio", report.stability_ratio, Some(f)))
-        });
-        let Some((quantity, value, Some(bound))) = failed else {
-            return Ok(());
-        };
-        let p = &self.particles;
-        let (particle, speed2) = (0..p.len())
-            .filter(|&i| p.role[i].is_fluid())
-            .map(|i| (i, norm2(&p.u[i])))
-            .fold((0, -1.0), |a, b| if b.1 > a.1 { b } else { a });
-        Err(StabilityError::BlowUp {
-            step: self.steps,
-            time: self.time,
-            quantity,
-            value,
-            bound,
-            particle,
-            position: p.x.get(particle).map(|x| x.to_vec()).unwrap_or_default(),
-            speed: speed2.max(0.0).sqrt(),
-        })
-    }
-
-    /// Fickian shifting with velocity/pressure correction at the current configuration;
-    /// returns the largest shift.
-    fn shift(&mut self, dt: f64) -> Result<f64, Error> {
-        let Some(sh) = self.params.shifting else {
-            return Ok(0.0);
-        };
-        let n = self.particles.len();
-        let nl = &self.nl;
-        let kernel = *nl.kernel();
-        let h = nl.h();
-        let p = &self.particles;
-        let lim = sh.max_fraction * self.params.dx;
-        let umax =
-            p.u.iter()
-                .zip(&p.role)
-                .filter(|(_, r)| r.is_fluid())
-                .map(|(u, _)| norm2(u))
-                .fold(0.0f64, f64::max)
-                .sqrt();
-        // δx_i = −A h |u_i| Δt ∇C_i,  ∇C_i = Σ_j ω_j ∇_i w_h(r_ij) = −Σ_j ω_j w_h'(r) dx/r
-        self.work.resize(n, [0.0; D]);
-        self.work.par_iter_mut().enumerate().for_each(|(i, s)| {
-            *s = [0.0; D];
-            if !p.role[i].is_fluid() {
-                return;
-            }
-            let mut gc = [0.0; D];
-            for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let r = nl.r2[k].sqrt();
-                let c = -p.vol[j] * kernel.dw_h(r) / r;
-                for a in 0..D {
-                    gc[a] += c * nl.dx[k][a];
-                }
-            }
-            let speed = if sh.global_speed {
-                umax
-            } else {
-                norm2(&p.u[i]).sqrt()
-            };
-            let f = -sh.coefficient * h * speed * dt;
-            let mut d: [f64; D] = gc.map(|g| f * g);
-            let m = norm2(&d).sqrt();
-            if m > lim {
-                d = d.map(|v| v * lim / m);
-            }
-            *s = d;
-        });
-        let max_shift = self
-            .work
-            .iter()
-            .map(|d| norm2(d).sqrt())
-            .fold(0.0, f64::max);
-        let p = &mut self.particles;
-        if sh.correct {
-            // Taylor correction of u and p to the shifted position (gradients before the shift)
-            if self.plan.has(Stage::Ghosts) {
-                self.boundary
-                    .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
-            }
-            self.grad.resize(n, [[0.0; D]; D]);
-            grad_vec_into(&self.nl, &p.vol, &p.u, &mut self.grad);
-            self.gp.resize(n, [0.0; D]);
-            grad_diff_into(&self.nl, &p.vol, &p.p, &mut self.gp);
-            for i in 0..n {
-                if !p.role[i].is_fluid() {
-                    continue;
-                }
-                let d = self.work[i];
-                for a in 0..D {
-                    p.u[i][a] += (0..D).map(|b| self.grad[i][a][b] * d[b]).sum::<f64>();
-                }
-                p.p[i] += (0..D).map(|b| self.gp[i][b] * d[b]).sum::<f64>();
-            }
-        }
-        for i in 0..n {
-            if p.role[i].is_fluid() {
-                for a in 0..D {
-                    p.x[i][a] += self.work[i][a];
-                }
-            }
-        }
-        self.boundary.confine(p)?;
-        Ok(max_shift)
     }
 }
 
