@@ -130,16 +130,16 @@ pub fn user_loop(
         report.timings.predictor = predictor_seconds;
         if let Some(rec) = rec.as_mut() {
             let boundary = boundary.to_spec();
-            let projection = step
-                .captured
-                .as_ref()
-                .filter(|_| snapshot)
-                .map(|capture| ProjectionRecord {
-                    capture,
-                    neighbors: nl.config(),
-                    boundary: &boundary,
-                    params: &params,
-                });
+            let projection =
+                step.captured
+                    .as_ref()
+                    .filter(|_| snapshot)
+                    .map(|capture| ProjectionRecord {
+                        capture,
+                        neighbors: nl.config(),
+                        boundary: &boundary,
+                        params: &params,
+                    });
             rec.record(&StepRecord {
                 context: StepContext::new(k, k as f64 * dt, params.allowed_floating),
                 report: &report,
@@ -159,7 +159,11 @@ fn out_dir() -> Result<Option<std::path::PathBuf>, String> {
     while let Some(a) = args.next() {
         match a.as_str() {
             "--out" => out = Some(args.next().ok_or("--out needs a directory")?.into()),
-            _ => return Err(format!("unknown argument '{a}' (usage: own_loop [--out DIR])")),
+            _ => {
+                return Err(format!(
+                    "unknown argument '{a}' (usage: own_loop [--out DIR])"
+                ))
+            }
         }
     }
     Ok(out)

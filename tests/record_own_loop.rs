@@ -57,7 +57,11 @@ fn the_own_loop_records_replays_and_reruns() {
         );
         assert_eq!(c.allowed_floating, 1);
         assert!(c.ok);
-        assert!(d.stability_ratio <= 1.0, "Theorem 4.5 ratio {}", d.stability_ratio);
+        assert!(
+            d.stability_ratio <= 1.0,
+            "Theorem 4.5 ratio {}",
+            d.stability_ratio
+        );
         // no driver: no neighbour or advection time, no shifting
         assert_eq!(d.timings.neighbors, 0.0);
         assert_eq!(d.timings.advect, 0.0);
@@ -118,7 +122,10 @@ fn a_snapshot_with_ragged_particle_arrays_is_an_error_not_a_panic() {
             ..StepRecord::new(StepContext::new(1, 0.1, 1), &report)
         })
         .unwrap_err();
-    assert!(err.to_string().contains("u has 1 entries for 2 positions"), "{err}");
+    assert!(
+        err.to_string().contains("u has 1 entries for 2 positions"),
+        "{err}"
+    );
     // nothing of the bad step was written; the file still finishes
     assert_eq!(rec.steps(), 0);
     let s = rec.finish().unwrap();

@@ -60,7 +60,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// How much a run records.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum RecordLevel {
     /// Nothing (no file is created).

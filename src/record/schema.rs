@@ -114,7 +114,11 @@ macro_rules! unit_enum_schema {
     };
 }
 
-unit_enum_schema!(DtLimit, "limit that set the time step", [Cfl, Viscous, Force, Max, Fixed]);
+unit_enum_schema!(
+    DtLimit,
+    "limit that set the time step",
+    [Cfl, Viscous, Force, Max, Fixed]
+);
 unit_enum_schema!(SolverKind, "linear solver", [Cholesky, Cg, Amg, Auto]);
 unit_enum_schema!(
     AmgSetup,
@@ -181,7 +185,10 @@ impl JsonSchema for SolveParams {
                 _ => Schema::default(),
             };
             if s.get("$ref").is_none() {
-                s.insert("description".into(), json!(format!("gpm::poisson::SolveParams::{k}")));
+                s.insert(
+                    "description".into(),
+                    json!(format!("gpm::poisson::SolveParams::{k}")),
+                );
             }
             props.insert(k.clone(), s.to_value());
         }
@@ -485,8 +492,7 @@ pub struct RunConfig {
     pub config: Value,
 }
 
-impl RunConfig {
-}
+impl RunConfig {}
 
 // ---------------------------------------------------------------------------------------------
 // /particles: foxglove.PointCloud
@@ -727,11 +733,13 @@ impl PointCloud {
             "properties": {"x": number, "y": number, "z": number, "w": number},
             "required": ["x", "y", "z", "w"],
         });
-        let numeric_types = ["UNKNOWN", "UINT8", "INT8", "UINT16", "INT16", "UINT32", "INT32", "FLOAT32", "FLOAT64"]
-            .iter()
-            .enumerate()
-            .map(|(k, t)| json!({"title": t, "const": k}))
-            .collect::<Vec<_>>();
+        let numeric_types = [
+            "UNKNOWN", "UINT8", "INT8", "UINT16", "INT16", "UINT32", "INT32", "FLOAT32", "FLOAT64",
+        ]
+        .iter()
+        .enumerate()
+        .map(|(k, t)| json!({"title": t, "const": k}))
+        .collect::<Vec<_>>();
         json!({
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "title": SCHEMA_POINT_CLOUD,
@@ -1404,13 +1412,24 @@ pub fn decode_roles(kind: &Array, source: &Array, walls: &Array) -> Result<Vec<R
         .collect()
 }
 
-
 /// The schema of every topic: `(topic, schema name, JSON Schema)`.
 pub fn all_schemas() -> Vec<(&'static str, &'static str, Value)> {
     vec![
-        (TOPIC_CONFIG, SCHEMA_CONFIG, message_schema::<RunConfig>(SCHEMA_CONFIG)),
-        (TOPIC_DIAGNOSTICS, SCHEMA_DIAGNOSTICS, message_schema::<StepDiagnostics>(SCHEMA_DIAGNOSTICS)),
+        (
+            TOPIC_CONFIG,
+            SCHEMA_CONFIG,
+            message_schema::<RunConfig>(SCHEMA_CONFIG),
+        ),
+        (
+            TOPIC_DIAGNOSTICS,
+            SCHEMA_DIAGNOSTICS,
+            message_schema::<StepDiagnostics>(SCHEMA_DIAGNOSTICS),
+        ),
         (TOPIC_PARTICLES, SCHEMA_POINT_CLOUD, PointCloud::schema()),
-        (TOPIC_PROJECTION, SCHEMA_PROJECTION, message_schema::<ProjectionInput>(SCHEMA_PROJECTION)),
+        (
+            TOPIC_PROJECTION,
+            SCHEMA_PROJECTION,
+            message_schema::<ProjectionInput>(SCHEMA_PROJECTION),
+        ),
     ]
 }
