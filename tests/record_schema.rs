@@ -143,7 +143,7 @@ fn every_variant_validates_and_round_trips() {
             step: k as u64 + 1,
             time: 0.5,
             dt: 0.01,
-            dt_limit,
+            dt_limit: Some(dt_limit),
             ..Default::default()
         };
         d.solve.solver = solvers[k % 3];
@@ -155,9 +155,18 @@ fn every_variant_validates_and_round_trips() {
         assert_valid(&v, &j, "diagnostics");
         let back: StepDiagnostics = serde_json::from_value(j).unwrap();
         assert!(back.stability_ratio.is_nan() && back.kinetic_energy.is_nan());
-        assert_eq!(back.dt_limit, dt_limit);
+        assert_eq!(back.dt_limit, Some(dt_limit));
         assert_eq!(back.solve.solver, solvers[k % 3]);
     }
+    // a loop of its own chose Δt: no limit, written as null
+    let d = StepDiagnostics {
+        dt_limit: None,
+        ..Default::default()
+    };
+    let j = serde_json::to_value(d).unwrap();
+    assert!(j["dt_limit"].is_null());
+    assert_valid(&v, &j, "diagnostics without a dt limit");
+    assert_eq!(serde_json::from_value::<StepDiagnostics>(j).unwrap(), d);
 
     let v = schema_of("gpm.RunConfig");
     for level in [
@@ -206,6 +215,9 @@ fn every_variant_validates_and_round_trips() {
             },
         },
         base.boundary.clone(),
+        BoundarySpec::Custom {
+            description: "a user's circular wall".into(),
+        },
     ];
     let weights = [
         Weight::CubicSpline,
@@ -235,6 +247,12 @@ fn every_variant_validates_and_round_trips() {
             assert_eq!(serde_json::from_value::<ProjectionInput>(j).unwrap(), m);
         }
     }
+    // a custom boundary is recorded but cannot be rebuilt: a typed error names it
+    let err = boundaries[3]
+        .build::<2>()
+        .err()
+        .expect("a custom boundary is not rebuilt");
+    assert!(err.to_string().contains("a user's circular wall"), "{err}");
 }
 
 #[test]

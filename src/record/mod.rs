@@ -15,7 +15,10 @@
 //! complete chunk and says where the file was cut.
 //!
 //! Nothing under `projection` or `poisson` knows about this module: a caller records from the
-//! observer of a scene's `run`, or from its own loop.
+//! observer of a scene's `run` ([`Recorder::write_step`]), or from its own loop
+//! ([`Recorder::record`] with a [`StepRecord`]: the projection's [`StepReport`], a
+//! [`StepContext`], and optionally the particles and the projection's capture, for any
+//! boundary). `examples/own_loop.rs` records a loop of its own this way.
 //!
 //! ```
 //! use gpm::record::{RecordLevel, Recorder};
@@ -40,11 +43,14 @@ pub mod rerun;
 pub mod schema;
 
 use crate::boundary::Boundary;
-use crate::flow::{FlowReport, Simulation};
-use crate::projection::ProjectionCapture;
+use crate::flow::{DtLimit, FlowReport, Simulation};
+use crate::neighbors::NeighborConfig;
+use crate::particles::{Particles, Role};
+use crate::projection::{ProjectionCapture, ProjectionParams, StepReport};
 use mcap::records::MessageHeader;
 use schema::{
-    encode_roles, Array, PointCloud, ProjectionInput, RunConfig, StepDiagnostics, ToBoundarySpec,
+    encode_roles, Array, BoundarySpec, PointCloud, ProjectionInput, RunConfig, StepDiagnostics,
+    ToBoundarySpec,
 };
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -54,7 +60,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// How much a run records.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(
+    Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum RecordLevel {
     /// Nothing (no file is created).
@@ -200,6 +208,186 @@ pub struct RecordSummary {
     pub notes: Vec<String>,
 }
 
+/// What a step record carries besides the projection's [`StepReport`]: where the step sits in
+/// the run and what the loop around the projection measured. [`StepContext::new`] gives what
+/// any loop knows (the rest zero, `dt_limit` unknown); [`StepContext::from_flow`] takes it all
+/// from a driver's [`FlowReport`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepContext {
+    /// Step number, 1 for the first (the MCAP sequence number; snapshots at `1, k+1, …`).
+    pub step: u64,
+    /// Simulation time after the step (the MCAP log time is this in nanoseconds).
+    pub time: f64,
+    /// Floating components the run allows (`ProjectionParams::allowed_floating`); the recorded
+    /// connectivity is `ok` when `floating ≤ allowed_floating` and nothing is isolated.
+    pub allowed_floating: usize,
+    /// Which limit set `Δt` (`None`: the loop chose `Δt` itself; recorded as `null`).
+    pub dt_limit: Option<DtLimit>,
+    /// The neighbour candidates were rebuilt this step.
+    pub neighbors_rebuilt: bool,
+    /// Largest particle shift this step (0 without shifting).
+    pub max_shift: f64,
+    /// Seconds spent on ghosts, neighbour list and volumes.
+    pub neighbors_seconds: f64,
+    /// Seconds spent on advection, shifting, confinement.
+    pub advect_seconds: f64,
+}
+
+impl StepContext {
+    /// Step `step` ending at `time`, in a run allowing `allowed_floating` floating components;
+    /// no driver extras.
+    pub fn new(step: u64, time: f64, allowed_floating: usize) -> Self {
+        StepContext {
+            step,
+            time,
+            allowed_floating,
+            ..Default::default()
+        }
+    }
+
+    /// The context of a driver's step.
+    pub fn from_flow(report: &FlowReport, allowed_floating: usize) -> Self {
+        StepContext {
+            step: report.step,
+            time: report.time,
+            allowed_floating,
+            dt_limit: Some(report.dt_limit),
+            neighbors_rebuilt: report.neighbors_rebuilt,
+            max_shift: report.max_shift,
+            neighbors_seconds: report.neighbors_seconds,
+            advect_seconds: report.advect_seconds,
+        }
+    }
+}
+
+/// Particles for a `/particles` snapshot, as plain slices with one entry per particle (ghosts
+/// included): positions, velocities, pressures, roles.
+#[derive(Clone, Copy, Debug)]
+pub struct ParticleView<'a, const D: usize> {
+    /// Positions.
+    pub x: &'a [[f64; D]],
+    /// Velocities.
+    pub u: &'a [[f64; D]],
+    /// Pressures.
+    pub p: &'a [f64],
+    /// Roles.
+    pub role: &'a [Role],
+}
+
+impl<'a, const D: usize> From<&'a Particles<D>> for ParticleView<'a, D> {
+    fn from(p: &'a Particles<D>) -> Self {
+        ParticleView {
+            x: &p.x,
+            u: &p.u,
+            p: &p.p,
+            role: &p.role,
+        }
+    }
+}
+
+impl<const D: usize> ParticleView<'_, D> {
+    /// Every slice has one entry per position.
+    fn check(&self) -> Result<(), RecordError> {
+        let n = self.x.len();
+        for (field, len) in [
+            ("u", self.u.len()),
+            ("p", self.p.len()),
+            ("role", self.role.len()),
+        ] {
+            if len != n {
+                return Err(RecordError::Spec {
+                    what: "particle snapshot",
+                    reason: format!("{field} has {len} entries for {n} positions"),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What a `/projection_input` records: the projection's capture (inputs and outputs of one
+/// `project` call) and what it ran with, enough for [`rerun`] to run it again.
+#[derive(Clone, Copy, Debug)]
+pub struct ProjectionRecord<'a, const D: usize> {
+    /// The capture of the step's projection (`ProjectionStep::captured` after a `project`
+    /// with `capture = true`).
+    pub capture: &'a ProjectionCapture<D>,
+    /// The neighbour list's configuration.
+    pub neighbors: &'a NeighborConfig<D>,
+    /// The boundary: [`ToBoundarySpec::to_spec`] for the crate's boundaries,
+    /// [`BoundarySpec::Custom`] for one of your own (recorded, not re-runnable).
+    pub boundary: &'a BoundarySpec,
+    /// The projection's parameters.
+    pub params: &'a ProjectionParams<D>,
+}
+
+impl<const D: usize> ProjectionRecord<'_, D> {
+    /// The message of step `step` ending at `time`.
+    fn message(&self, step: u64, time: f64) -> ProjectionInput {
+        // exhaustive on purpose: whatever the projection captures is recorded
+        let ProjectionCapture {
+            x,
+            vol,
+            role,
+            u_star,
+            p_in,
+            phi_in,
+            dt,
+            u_out,
+            p_out,
+            phi,
+        } = self.capture;
+        let (role_kind, ghost_source, ghost_walls) = encode_roles(role);
+        ProjectionInput {
+            step,
+            time,
+            dt: *dt,
+            dimension: D,
+            particles: x.len(),
+            threads: rayon::current_num_threads(),
+            neighbors: self.neighbors.into(),
+            boundary: self.boundary.clone(),
+            params: self.params.into(),
+            x: Array::from_vectors(x),
+            vol: Array::from_f64(vol),
+            role_kind,
+            ghost_source,
+            ghost_walls,
+            u_star: Array::from_vectors(u_star),
+            p_in: Array::from_f64(p_in),
+            phi_in: Array::from_f64(phi_in),
+            u_out: Array::from_vectors(u_out),
+            p_out: Array::from_f64(p_out),
+            phi: Array::from_f64(phi),
+        }
+    }
+}
+
+/// One step for [`Recorder::record`], from any loop and any boundary.
+#[derive(Clone, Copy, Debug)]
+pub struct StepRecord<'a, const D: usize> {
+    /// Step number, time and what the loop measured.
+    pub context: StepContext,
+    /// The projection's report of the step.
+    pub report: &'a StepReport,
+    /// The particles after the step, for a snapshot (used at snapshot steps only).
+    pub particles: Option<ParticleView<'a, D>>,
+    /// The projection's capture and settings (used at snapshot steps only).
+    pub projection: Option<ProjectionRecord<'a, D>>,
+}
+
+impl<'a, const D: usize> StepRecord<'a, D> {
+    /// The diagnostics of a step only (no snapshot, no projection input).
+    pub fn new(context: StepContext, report: &'a StepReport) -> Self {
+        StepRecord {
+            context,
+            report,
+            particles: None,
+            projection: None,
+        }
+    }
+}
+
 struct Inner {
     path: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
@@ -210,6 +398,7 @@ struct Inner {
     since_flush: u64,
     counts: BTreeMap<String, u64>,
     missing_capture: bool,
+    missing_particles: bool,
 }
 
 /// Writes a run to an MCAP file. Create it before the run, call
@@ -235,23 +424,25 @@ impl std::fmt::Debug for Recorder {
 }
 
 impl Recorder {
-    /// Creates (truncates) `path` and writes `/config` with `config` (the run's configuration,
-    /// verbatim: for `gpm run` it is `{"scene": "cavity", "config": {...}}`). Snapshots every
+    /// Creates (truncates) `path` and writes `/config` with `config`: the run's configuration,
+    /// any serde-serialisable value, recorded verbatim as JSON (for `gpm run` it is
+    /// `{"scene": "cavity", "config": {...}}`; a loop of your own passes its own settings, or
+    /// `&()` for none, recorded as `null`). Snapshots every
     /// `particles_every` steps at level `full`; flushes every step; zstd chunks.
-    pub fn create(
+    pub fn create<C: Serialize + ?Sized>(
         path: impl AsRef<Path>,
         level: RecordLevel,
         particles_every: u64,
-        config: &serde_json::Value,
+        config: &C,
     ) -> Result<Self, RecordError> {
         Self::create_with(path, RecorderOptions::new(level, particles_every), config)
     }
 
     /// [`create`](Self::create) with every option.
-    pub fn create_with(
+    pub fn create_with<C: Serialize + ?Sized>(
         path: impl AsRef<Path>,
         options: RecorderOptions,
-        config: &serde_json::Value,
+        config: &C,
     ) -> Result<Self, RecordError> {
         let options = RecorderOptions {
             particles_every: options.particles_every.max(1),
@@ -270,6 +461,11 @@ impl Recorder {
         }
         let t0 = Instant::now();
         let path = path.as_ref().to_path_buf();
+        let config = serde_json::to_value(config).map_err(|e| RecordError::Json {
+            path: path.clone(),
+            what: "/config".into(),
+            source: e,
+        })?;
         let file = File::create(&path).map_err(|e| RecordError::io(&path, e))?;
         let compression = match options.compression {
             ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
@@ -308,7 +504,7 @@ impl Recorder {
             flush_every: options.flush_every,
             compression: options.compression.name().into(),
             threads: rayon::current_num_threads(),
-            config: config.clone(),
+            config,
         };
         let data = serde_json::to_vec(&run).map_err(|e| RecordError::Json {
             path: path.clone(),
@@ -339,6 +535,7 @@ impl Recorder {
             since_flush: 0,
             counts,
             missing_capture: false,
+            missing_particles: false,
         });
         rec.seconds += t0.elapsed().as_secs_f64();
         Ok(rec)
@@ -359,92 +556,94 @@ impl Recorder {
         self.steps
     }
 
-    /// Records one step: `/diagnostics` always; at level `full`, every `k` steps, `/particles`
-    /// and `/projection_input`. The projection input is the simulation's last projection
-    /// capture, so set `sim.projection.capture = true` before the run; without it the input is
-    /// skipped and a note is returned by [`finish`](Self::finish). Flushes every `flush_every`
-    /// steps.
+    /// True when step `step` gets a `/particles` snapshot and a `/projection_input` (level
+    /// `full`, steps `1, k+1, 2k+1, …`): a loop of its own sets its projection's `capture` flag
+    /// from this before projecting, and passes particles and capture only then.
+    pub fn wants_snapshot(&self, step: u64) -> bool {
+        self.inner.is_some()
+            && self.options.level == RecordLevel::Full
+            && (step.max(1) - 1) % self.options.particles_every == 0
+    }
+
+    /// Records one step of a [`Simulation`]: [`record`](Self::record) with the flow report's
+    /// context, the simulation's particles, and its last projection capture when it belongs to
+    /// this step. Set `sim.projection.capture = true` before the run to record projection
+    /// inputs; without it they are skipped and a note is returned by [`finish`](Self::finish).
     pub fn write_step<const D: usize, B: Boundary<D> + ToBoundarySpec<D>>(
         &mut self,
         report: &FlowReport,
         sim: &Simulation<D, B>,
     ) -> Result<(), RecordError> {
+        let context = StepContext::from_flow(report, sim.params.projection.allowed_floating);
+        if !self.wants_snapshot(report.step) {
+            return self.record::<D>(&StepRecord::new(context, &report.projection));
+        }
+        let boundary = sim.boundary.to_spec();
+        let projection = sim
+            .projection
+            .captured
+            .as_ref()
+            .filter(|c| c.dt == report.projection.dt && c.phi == sim.projection.phi)
+            .map(|capture| ProjectionRecord {
+                capture,
+                neighbors: sim.nl.config(),
+                boundary: &boundary,
+                params: &sim.params.projection,
+            });
+        self.record(&StepRecord {
+            particles: Some((&sim.particles).into()),
+            projection,
+            ..StepRecord::new(context, &report.projection)
+        })
+    }
+
+    /// Records one step from any loop: `/diagnostics` always (from `rec.report` and
+    /// `rec.context`); at level `full`, at the steps [`wants_snapshot`](Self::wants_snapshot)
+    /// names, `/particles` from `rec.particles` and `/projection_input` from `rec.projection`
+    /// (either missing: skipped, with a note from [`finish`](Self::finish)). Flushes every
+    /// `flush_every` steps. Particle slices of different lengths are an error
+    /// ([`RecordError::Spec`]), found before anything of the step is written.
+    pub fn record<const D: usize>(&mut self, rec: &StepRecord<'_, D>) -> Result<(), RecordError> {
+        let snapshot = self.wants_snapshot(rec.context.step);
         let Some(inner) = self.inner.as_mut() else {
             return Ok(());
         };
+        if let (true, Some(view)) = (snapshot, &rec.particles) {
+            view.check()?;
+        }
         let t0 = Instant::now();
-        let step = report.step;
-        let log_time = time_to_nanos(report.time);
+        let step = rec.context.step;
+        let time = rec.context.time;
+        let log_time = time_to_nanos(time);
         let header = |channel_id| MessageHeader {
             channel_id,
             sequence: step as u32,
             log_time,
             publish_time: log_time,
         };
-        let diag = StepDiagnostics::from_report(
-            report,
-            sim.params.projection.allowed_floating,
-            self.last_seconds,
-        );
+        let diag = StepDiagnostics::new(&rec.context, rec.report, self.last_seconds);
         inner.write(
             header(inner.ch_diagnostics),
             schema::TOPIC_DIAGNOSTICS,
             step,
             &diag,
         )?;
-        let k = self.options.particles_every;
-        if self.options.level == RecordLevel::Full && (step.max(1) - 1) % k == 0 {
-            let p = &sim.particles;
-            let cloud = PointCloud::from_particles(report.time, &p.x, &p.u, &p.p, &p.role);
-            inner.write(
-                header(inner.ch_particles),
-                schema::TOPIC_PARTICLES,
-                step,
-                &cloud,
-            )?;
-            let fresh = sim
-                .projection
-                .captured
-                .as_ref()
-                .filter(|c| c.dt == report.projection.dt && c.phi == sim.projection.phi);
-            match fresh {
-                Some(c) => {
-                    // exhaustive on purpose: whatever the projection captures is recorded
-                    let ProjectionCapture {
-                        x,
-                        vol,
-                        role,
-                        u_star,
-                        p_in,
-                        phi_in,
-                        dt,
-                        u_out,
-                        p_out,
-                        phi,
-                    } = c;
-                    let (role_kind, ghost_source, ghost_walls) = encode_roles(role);
-                    let msg = ProjectionInput {
+        if snapshot {
+            match &rec.particles {
+                Some(v) => {
+                    let cloud = PointCloud::from_particles(time, v.x, v.u, v.p, v.role);
+                    inner.write(
+                        header(inner.ch_particles),
+                        schema::TOPIC_PARTICLES,
                         step,
-                        time: report.time,
-                        dt: *dt,
-                        dimension: D,
-                        particles: x.len(),
-                        threads: rayon::current_num_threads(),
-                        neighbors: sim.nl.config().into(),
-                        boundary: sim.boundary.to_spec(),
-                        params: (&sim.params.projection).into(),
-                        x: Array::from_vectors(x),
-                        vol: Array::from_f64(vol),
-                        role_kind,
-                        ghost_source,
-                        ghost_walls,
-                        u_star: Array::from_vectors(u_star),
-                        p_in: Array::from_f64(p_in),
-                        phi_in: Array::from_f64(phi_in),
-                        u_out: Array::from_vectors(u_out),
-                        p_out: Array::from_f64(p_out),
-                        phi: Array::from_f64(phi),
-                    };
+                        &cloud,
+                    )?;
+                }
+                None => inner.missing_particles = true,
+            }
+            match &rec.projection {
+                Some(pr) => {
+                    let msg = pr.message(step, time);
                     inner.write(
                         header(inner.ch_projection),
                         schema::TOPIC_PROJECTION,
@@ -496,10 +695,18 @@ impl Recorder {
             .map_err(|e| RecordError::io(&path, e))?
             .len();
         out.seconds += t0.elapsed().as_secs_f64();
+        if inner.missing_particles {
+            out.notes.push(
+                "particle snapshots were not recorded at some snapshot steps: no particles were \
+                 given (StepRecord::particles)"
+                    .into(),
+            );
+        }
         if inner.missing_capture {
             out.notes.push(
-                "projection inputs were not recorded: the simulation's projection capture was \
-                 off (set sim.projection.capture = true before the run)"
+                "projection inputs were not recorded at some snapshot steps: no fresh projection \
+                 capture was given (set capture = true on the ProjectionStep, \
+                 sim.projection.capture for a Simulation, before projecting)"
                     .into(),
             );
         }

@@ -1,5 +1,5 @@
-//! The messages of a gpm MCAP log: serde types and, next to each, the JSON Schema stored in the
-//! file for it (MCAP schema encoding `jsonschema`, message encoding `json`).
+//! The messages of a gpm MCAP log: serde types whose JSON Schemas, stored in the file (MCAP
+//! schema encoding `jsonschema`, message encoding `json`), are derived from the types themselves.
 //!
 //! | topic | schema name | type | when |
 //! | --- | --- | --- | --- |
@@ -14,20 +14,30 @@
 //! numpy-style `dtype` and a `shape`, so they are exact (bit for bit) and cheap to write; in
 //! Python `numpy.frombuffer(base64.b64decode(a["data"]), a["dtype"]).reshape(a["shape"])`.
 //!
-//! Each schema lists every property as required and forbids others, so the schema tests
-//! (`tests/record_schema.rs`) fail as soon as a type and its schema drift apart.
+//! **Where the schemas come from.** The gpm messages derive [`schemars::JsonSchema`]: property
+//! names, types, enum values and descriptions (the doc comments) follow the serde types by
+//! construction, so a type and its schema cannot drift apart. [`message_schema`] then makes
+//! every property required and forbids others (the writer always writes every field). The
+//! crate's enums that the messages embed (`DtLimit`, `SolverKind`, …) get their schemas here,
+//! with the values taken from their serde names and an exhaustive `match` that stops the build
+//! when a variant is added; [`SolveParams`]'s schema is read from the JSON of its default value.
+//! Only `foxglove.PointCloud` is written out by hand: it is Foxglove's published schema, which
+//! Foxglove Studio recognises by name.
 
 use super::RecordError;
 use crate::boundary::{Boundary, NoBoundary, PeriodicBox, VectorKind, Wall, Walls};
+use crate::consistent::GradientKind;
 use crate::flow::{DtLimit, FlowReport};
 use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
 use crate::particles::Role;
 use crate::poisson::{AmgSetup, SolveParams, SolverKind};
-use crate::projection::{ProjectionParams, Scheme};
+use crate::projection::{ProjectionParams, Scheme, StepReport};
 use base64::Engine as _;
+use schemars::{json_schema, JsonSchema, Schema, SchemaGenerator};
 use serde::{Deserialize, Deserializer, Serialize};
 use serde_json::{json, Value};
+use std::borrow::Cow;
 
 /// Version of the message layout below; bumped on any incompatible change.
 pub const FORMAT_VERSION: u32 = 1;
@@ -56,124 +66,144 @@ fn nullable<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// JSON Schema building blocks
+// Deriving the stored schemas
 
-const DRAFT: &str = "https://json-schema.org/draft/2020-12/schema";
-
-fn number(description: &str) -> Value {
-    json!({"type": "number", "description": description})
-}
-fn number_or_null(description: &str) -> Value {
-    json!({"type": ["number", "null"], "description": description})
-}
-fn count(description: &str) -> Value {
-    json!({"type": "integer", "minimum": 0, "description": description})
-}
-fn boolean(description: &str) -> Value {
-    json!({"type": "boolean", "description": description})
-}
-fn string_enum(description: &str, values: &[&str]) -> Value {
-    json!({"type": "string", "enum": values, "description": description})
-}
-fn numbers(description: &str) -> Value {
-    json!({"type": "array", "items": {"type": "number"}, "description": description})
-}
-
-/// An object schema whose properties are all required and no other is allowed.
-fn object(description: &str, props: &[(&str, Value)]) -> Value {
-    let mut properties = serde_json::Map::new();
-    for (k, v) in props {
-        properties.insert((*k).to_string(), v.clone());
-    }
-    let required: Vec<&str> = props.iter().map(|(k, _)| *k).collect();
-    json!({
-        "type": "object",
-        "description": description,
-        "properties": properties,
-        "required": required,
-        "additionalProperties": false,
-    })
-}
-
-fn root(title: &str, mut schema: Value) -> Value {
-    let m = schema.as_object_mut().expect("object schema");
-    m.insert("$schema".into(), json!(DRAFT));
-    m.insert("title".into(), json!(title));
-    schema
-}
-
-fn weight_schema() -> Value {
-    json!({
-        "description": "Reference weight: cubic_spline, wendland_c2, wendland_c4 or {\"poly\": {\"p\", \"m\"}} for r^p (1 - r)^m",
-        "oneOf": [
-            {"type": "string", "enum": ["cubic_spline", "wendland_c2", "wendland_c4"]},
-            object("polynomial weight r^p (1 - r)^m", &[("poly", object("powers", &[
-                ("p", count("power of r")),
-                ("m", count("power of (1 - r)")),
-            ]))]),
-        ]
-    })
-}
-
-fn scheme_schema() -> Value {
-    string_enum(
-        "pressure-correction scheme",
-        &["non_incremental", "incremental", "rotational"],
-    )
-}
-
-fn solver_kind_schema() -> Value {
-    string_enum("linear solver", &["cholesky", "cg", "amg", "auto"])
-}
-
-fn amg_setup_schema() -> Value {
-    string_enum(
-        "what was done to the AMG hierarchy before the solve",
-        &["none", "reused", "lagged", "refreshed", "rebuilt"],
-    )
-}
-
-/// The schema of [`SolveParams`], derived from the JSON of its default value so that it follows
-/// the solver's options as they are added (every key required, no other allowed, each typed by
-/// its default: boolean, non-negative integer, number, or the solver name).
-fn solve_params_schema() -> Value {
-    let describe = |k: &str| match k {
-        "rel_tol" => "CG relative tolerance",
-        "abs_tol" => "CG absolute tolerance",
-        "max_iters" => "CG iteration limit",
-        "warm_start" => "CG starts from the previous increment",
-        "reuse_symbolic" => "Cholesky reuses the symbolic analysis",
-        "reuse_numeric" => "Cholesky reuses the numeric factor",
-        "reuse_values" => {
-            "matrix values kept while pair data, volumes and coefficients are unchanged"
-        }
-        "direct_limit" => "Auto: largest 2D system solved directly",
-        "amg_reuse_values" => "AMG: values-only refresh of the Galerkin operators",
-        "amg_lag" => "AMG: keep the hierarchy while iterations stay low",
-        "amg_lag_factor" => "AMG: refresh threshold on iterations per decade",
-        _ => "see gpm::poisson::SolveParams",
+/// Every object schema lists all its properties as required and allows no other; the Rust
+/// `format` annotations (`double`, `uint`, …), which no JSON Schema validator knows, are dropped.
+fn strict(schema: &mut Schema) {
+    let Some(obj) = schema.as_object_mut() else {
+        return;
     };
-    let default = serde_json::to_value(SolveParams::default()).expect("SolveParams serialises");
-    let mut props: Vec<(&str, Value)> = Vec::new();
-    for (k, v) in default.as_object().expect("SolveParams is a struct") {
-        let schema = match v {
-            _ if k == "solver" => solver_kind_schema(),
-            Value::Bool(_) => boolean(describe(k)),
-            Value::Number(n) if n.is_u64() => count(describe(k)),
-            Value::Number(_) => number(describe(k)),
-            Value::String(_) => json!({"type": "string", "description": describe(k)}),
-            _ => json!({"description": describe(k)}),
-        };
-        props.push((k.as_str(), schema));
+    obj.remove("format");
+    if let Some(Value::Object(props)) = obj.get("properties") {
+        let required: Vec<Value> = props.keys().map(|k| json!(k)).collect();
+        obj.insert("required".into(), Value::Array(required));
+        obj.entry("additionalProperties").or_insert(json!(false));
     }
-    object("gpm::poisson::SolveParams", &props)
 }
 
+/// The JSON Schema (draft 2020-12) of message type `T`, titled with its schema name.
+pub fn message_schema<T: JsonSchema>(title: &str) -> Value {
+    let mut schema = schemars::generate::SchemaSettings::draft2020_12()
+        .with_transform(schemars::transform::RecursiveTransform(strict))
+        .into_generator()
+        .into_root_schema_for::<T>();
+    schema.insert("title".into(), json!(title));
+    schema.to_value()
+}
+
+/// The schema of a unit-only enum from the serde names of its variants. The `match` is
+/// exhaustive, so adding a variant stops the build here until it is listed.
+macro_rules! unit_enum_schema {
+    ($ty:ident, $description:literal, [$($v:ident),+ $(,)?]) => {
+        impl JsonSchema for $ty {
+            fn schema_name() -> Cow<'static, str> {
+                stringify!($ty).into()
+            }
+            fn json_schema(_: &mut SchemaGenerator) -> Schema {
+                const _: fn(&$ty) = |v| match v {
+                    $($ty::$v)|+ => {}
+                };
+                let names: Vec<Value> = [$($ty::$v),+]
+                    .iter()
+                    .map(|v| serde_json::to_value(v).expect("a unit variant serialises"))
+                    .collect();
+                json_schema!({"type": "string", "enum": names, "description": $description})
+            }
+        }
+    };
+}
+
+unit_enum_schema!(
+    DtLimit,
+    "limit that set the time step",
+    [Cfl, Viscous, Force, Max, Fixed]
+);
+unit_enum_schema!(SolverKind, "linear solver", [Cholesky, Cg, Amg, Auto]);
+unit_enum_schema!(
+    AmgSetup,
+    "what was done to the AMG hierarchy before the solve",
+    [None, Reused, Lagged, Refreshed, Rebuilt]
+);
+unit_enum_schema!(
+    Scheme,
+    "pressure-correction scheme",
+    [NonIncremental, Incremental, Rotational]
+);
+unit_enum_schema!(
+    GradientKind,
+    "gradient of the predictor and the correction: difference (adjoint to the source) or renormalised",
+    [Difference, Renormalised]
+);
+
+impl JsonSchema for Weight {
+    fn schema_name() -> Cow<'static, str> {
+        "Weight".into()
+    }
+    fn json_schema(generator: &mut SchemaGenerator) -> Schema {
+        const _: fn(&Weight) = |w| match w {
+            Weight::CubicSpline | Weight::WendlandC2 | Weight::WendlandC4 | Weight::Poly { .. } => {
+            }
+        };
+        let names: Vec<Value> = [Weight::CubicSpline, Weight::WendlandC2, Weight::WendlandC4]
+            .iter()
+            .map(|w| serde_json::to_value(w).expect("a unit variant serialises"))
+            .collect();
+        let power = generator.subschema_for::<u32>();
+        json_schema!({
+            "description": "reference weight: a named kernel or {\"poly\": {\"p\", \"m\"}} for r^p (1 - r)^m",
+            "oneOf": [
+                {"type": "string", "enum": names},
+                {
+                    "type": "object",
+                    "properties": {"poly": {
+                        "type": "object",
+                        "properties": {"p": power.clone(), "m": power},
+                    }},
+                },
+            ],
+        })
+    }
+}
+
+/// [`SolveParams`]' schema, read from the JSON of its default value so that it follows the
+/// solver's options as they are added: each key typed by its default (boolean, non-negative
+/// integer, number, or the solver name).
+impl JsonSchema for SolveParams {
+    fn schema_name() -> Cow<'static, str> {
+        "SolveParams".into()
+    }
+    fn json_schema(generator: &mut SchemaGenerator) -> Schema {
+        let default = serde_json::to_value(SolveParams::default()).expect("SolveParams serialises");
+        let mut props = serde_json::Map::new();
+        for (k, v) in default.as_object().expect("SolveParams is a struct") {
+            let mut s = match v {
+                _ if k == "solver" => generator.subschema_for::<SolverKind>(),
+                Value::Bool(_) => generator.subschema_for::<bool>(),
+                Value::Number(n) if n.is_u64() => generator.subschema_for::<u64>(),
+                Value::Number(_) => generator.subschema_for::<f64>(),
+                _ => Schema::default(),
+            };
+            if s.get("$ref").is_none() {
+                s.insert(
+                    "description".into(),
+                    json!(format!("gpm::poisson::SolveParams::{k}")),
+                );
+            }
+            props.insert(k.clone(), s.to_value());
+        }
+        json_schema!({
+            "type": "object",
+            "description": "gpm::poisson::SolveParams",
+            "properties": props,
+        })
+    }
+}
 // ---------------------------------------------------------------------------------------------
 // /diagnostics
 
 /// Connectivity of the fluid graph at one step (Imoto 2019, Def. 3.1).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ConnectivityDiagnostics {
     /// Components of the fluid neighbour graph.
@@ -193,7 +223,7 @@ pub struct ConnectivityDiagnostics {
 }
 
 /// The Poisson solve of one step.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SolveDiagnostics {
     /// The solver that ran.
@@ -206,12 +236,15 @@ pub struct SolveDiagnostics {
     pub iterations: usize,
     /// `‖ω∘b − K x‖₂`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub abs_residual: f64,
     /// `‖ω∘b − K x‖₂ / ‖ω∘b‖₂`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub rel_residual: f64,
     /// Largest relative compatibility defect of a floating component (discrete Gauss theorem).
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub compatibility_defect: f64,
     /// The matrix pattern was rebuilt.
     pub pattern_rebuilt: bool,
@@ -221,15 +254,19 @@ pub struct SolveDiagnostics {
     pub reused_numeric: bool,
     /// Seconds: assembly.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub assemble_seconds: f64,
     /// Seconds: symbolic analysis.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub symbolic_seconds: f64,
     /// Seconds: numeric factorisation.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub numeric_seconds: f64,
     /// Seconds: triangular solves or CG iterations.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub iterate_seconds: f64,
     /// AMG: what was done to the hierarchy before the solve (absent in older logs: `none`).
     #[serde(default)]
@@ -239,86 +276,106 @@ pub struct SolveDiagnostics {
     pub amg_levels: usize,
     /// AMG: operator complexity (0 without AMG).
     #[serde(default, deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub amg_operator_complexity: f64,
     /// Seconds: AMG setup (rebuild or refresh) in this solve.
     #[serde(default, deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub amg_setup_seconds: f64,
 }
 
 /// Wall-clock seconds per stage of one step.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TimingDiagnostics {
     /// Ghosts, neighbour list, volumes.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub neighbors: f64,
     /// Predictor.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub predictor: f64,
     /// Connectivity, `c0`, norms.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub diagnostics: f64,
     /// Source `∇̂h·f`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub source: f64,
     /// Poisson solve (assembly, factorisation, iterations).
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub solve: f64,
     /// Correction and pressure update.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub correction: f64,
     /// Advection, shifting, confinement.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub advect: f64,
     /// Sum of the stages above.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub total: f64,
     /// Seconds the recorder spent on the *previous* step (serialising, compressing, flushing):
     /// the recording overhead, comparable with `total`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub record: f64,
 }
 
 /// One `/diagnostics` message: what one flow step did and measured.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StepDiagnostics {
     /// Step number (1 for the first step); also the MCAP sequence number.
     pub step: u64,
     /// Simulation time after the step; the MCAP log time is this in nanoseconds.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub time: f64,
     /// Time step.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub dt: f64,
-    /// Which limit set `Δt`.
-    pub dt_limit: DtLimit,
+    /// Which limit set `Δt`; `null` when the caller's own loop chose it.
+    pub dt_limit: Option<DtLimit>,
     /// h-connectivity.
     pub connectivity: ConnectivityDiagnostics,
     /// Semi-regularity constant `c0` (Def. 3.2).
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub c0: f64,
     /// Theorem 4.5 ratio `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)` (at most 1 by the theorem).
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub stability_ratio: f64,
     /// The Poisson solve.
     pub solve: SolveDiagnostics,
     /// `‖∇̂h·u*‖_ℓ2(Ω)`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub div_before: f64,
     /// `‖∇̂h·uⁿ⁺¹‖_ℓ2(Ω)`.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub div_after: f64,
     /// Kinetic energy after the step.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub kinetic_energy: f64,
     /// Largest fluid speed after the step.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub max_speed: f64,
     /// The neighbour candidates were rebuilt this step.
     pub neighbors_rebuilt: bool,
     /// Largest particle shift this step.
     #[serde(deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
     pub max_shift: f64,
     /// Seconds per stage.
     pub timings: TimingDiagnostics,
@@ -328,21 +385,32 @@ impl StepDiagnostics {
     /// The diagnostics of a flow step. `allowed_floating` comes from the projection parameters;
     /// `record_seconds` is the recorder's time on the previous step.
     pub fn from_report(report: &FlowReport, allowed_floating: usize, record_seconds: f64) -> Self {
-        let p = &report.projection;
+        Self::new(
+            &super::StepContext::from_flow(report, allowed_floating),
+            &report.projection,
+            record_seconds,
+        )
+    }
+
+    /// The diagnostics of one projection step `p` in its context `ctx` (from any loop);
+    /// `record_seconds` is the recorder's time on the previous step. The total time is
+    /// `neighbors + predictor + diagnostics + source + solve + correction + advect`.
+    pub fn new(ctx: &super::StepContext, p: &StepReport, record_seconds: f64) -> Self {
         let c = &p.connectivity;
         let t = &p.timings;
-        let total = report.neighbors_seconds
+        let allowed_floating = ctx.allowed_floating;
+        let total = ctx.neighbors_seconds
             + t.predictor
             + t.diagnostics
             + t.source
             + t.solve
             + t.correction
-            + report.advect_seconds;
+            + ctx.advect_seconds;
         StepDiagnostics {
-            step: report.step,
-            time: report.time,
+            step: ctx.step,
+            time: ctx.time,
             dt: p.dt,
-            dt_limit: report.dt_limit,
+            dt_limit: ctx.dt_limit,
             connectivity: ConnectivityDiagnostics {
                 components: c.components,
                 anchored: c.anchored,
@@ -377,102 +445,20 @@ impl StepDiagnostics {
             div_after: p.div_after,
             kinetic_energy: p.kinetic_energy,
             max_speed: p.max_speed,
-            neighbors_rebuilt: report.neighbors_rebuilt,
-            max_shift: report.max_shift,
+            neighbors_rebuilt: ctx.neighbors_rebuilt,
+            max_shift: ctx.max_shift,
             timings: TimingDiagnostics {
-                neighbors: report.neighbors_seconds,
+                neighbors: ctx.neighbors_seconds,
                 predictor: t.predictor,
                 diagnostics: t.diagnostics,
                 source: t.source,
                 solve: t.solve,
                 correction: t.correction,
-                advect: report.advect_seconds,
+                advect: ctx.advect_seconds,
                 total,
                 record: record_seconds,
             },
         }
-    }
-
-    /// JSON Schema of the message (schema name [`SCHEMA_DIAGNOSTICS`]).
-    pub fn schema() -> Value {
-        let secs = |d: &str| number_or_null(&format!("seconds: {d}"));
-        root(
-            SCHEMA_DIAGNOSTICS,
-            object(
-                "One flow step of a gpm run: connectivity, c0, Theorem 4.5 ratio, Poisson solve, divergence, energy, timings",
-                &[
-                    ("step", count("step number, 1 for the first step (= MCAP sequence)")),
-                    ("time", number_or_null("simulation time after the step (MCAP log time = time in ns)")),
-                    ("dt", number_or_null("time step")),
-                    ("dt_limit", string_enum("limit that set the time step", &["cfl", "viscous", "force", "max", "fixed"])),
-                    (
-                        "connectivity",
-                        object(
-                            "h-connectivity of the fluid graph (Imoto 2019, Def. 3.1)",
-                            &[
-                                ("components", count("components of the fluid neighbour graph")),
-                                ("anchored", count("components touching a Dirichlet particle")),
-                                ("floating", count("floating (pure Neumann) components")),
-                                ("isolated", count("fluid particles without neighbours")),
-                                ("allowed_floating", count("floating components the run allows")),
-                                ("ok", boolean("floating <= allowed_floating and no isolated particle")),
-                            ],
-                        ),
-                    ),
-                    ("c0", number_or_null("semi-regularity constant c0 = max_i sum_j w_j w_h(r_ij)")),
-                    ("stability_ratio", number_or_null("Theorem 4.5 ratio |phi|_h01 / (sqrt(d c0) |f|_l2), at most 1")),
-                    (
-                        "solve",
-                        object(
-                            "the pressure Poisson solve",
-                            &[
-                                ("solver", solver_kind_schema()),
-                                ("unknowns", count("unknowns")),
-                                ("nnz", count("stored matrix entries")),
-                                ("iterations", count("CG iterations (0 for Cholesky)")),
-                                ("abs_residual", number_or_null("|w b - K x|_2")),
-                                ("rel_residual", number_or_null("|w b - K x|_2 / |w b|_2")),
-                                ("compatibility_defect", number_or_null("largest relative compatibility defect of a floating component")),
-                                ("pattern_rebuilt", boolean("the matrix pattern was rebuilt")),
-                                ("reused_symbolic", boolean("Cholesky reused its symbolic analysis")),
-                                ("reused_numeric", boolean("Cholesky reused its numeric factor")),
-                                ("assemble_seconds", secs("assembly")),
-                                ("symbolic_seconds", secs("symbolic analysis")),
-                                ("numeric_seconds", secs("numeric factorisation")),
-                                ("iterate_seconds", secs("triangular solves or CG iterations")),
-                                ("amg_setup", amg_setup_schema()),
-                                ("amg_levels", count("AMG levels (0 without AMG)")),
-                                ("amg_operator_complexity", number_or_null("AMG operator complexity sum nnz(A_l)/nnz(A_0) (0 without AMG)")),
-                                ("amg_setup_seconds", secs("AMG rebuild or refresh")),
-                            ],
-                        ),
-                    ),
-                    ("div_before", number_or_null("|div u*|_l2 over the fluid")),
-                    ("div_after", number_or_null("|div u^{n+1}|_l2 over the fluid")),
-                    ("kinetic_energy", number_or_null("kinetic energy after the step")),
-                    ("max_speed", number_or_null("largest fluid speed after the step")),
-                    ("neighbors_rebuilt", boolean("the neighbour candidates were rebuilt")),
-                    ("max_shift", number_or_null("largest particle shift")),
-                    (
-                        "timings",
-                        object(
-                            "wall-clock seconds per stage",
-                            &[
-                                ("neighbors", secs("ghosts, neighbour list, volumes")),
-                                ("predictor", secs("predictor")),
-                                ("diagnostics", secs("connectivity, c0, norms")),
-                                ("source", secs("divergence source")),
-                                ("solve", secs("Poisson solve")),
-                                ("correction", secs("correction and pressure update")),
-                                ("advect", secs("advection, shifting")),
-                                ("total", secs("sum of the stages")),
-                                ("record", secs("recorder time on the previous step")),
-                            ],
-                        ),
-                    ),
-                ],
-            ),
-        )
     }
 }
 
@@ -480,10 +466,11 @@ impl StepDiagnostics {
 // /config
 
 /// The `/config` message: the run's complete configuration, written once before the first step.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
     /// Always `"gpm-mcap"`.
+    #[schemars(extend("const" = "gpm-mcap"))]
     pub format: String,
     /// [`FORMAT_VERSION`] of the writer.
     pub format_version: u32,
@@ -496,6 +483,7 @@ pub struct RunConfig {
     /// The file is flushed (a chunk closed) every this many steps.
     pub flush_every: u64,
     /// Chunk compression (`zstd` or `none`).
+    #[schemars(extend("enum" = ["zstd", "none"]))]
     pub compression: String,
     /// Rayon worker threads of the run (results of parallel reductions may depend on it).
     pub threads: usize,
@@ -504,49 +492,7 @@ pub struct RunConfig {
     pub config: Value,
 }
 
-impl RunConfig {
-    /// JSON Schema of the message (schema name [`SCHEMA_CONFIG`]).
-    pub fn schema() -> Value {
-        root(
-            SCHEMA_CONFIG,
-            object(
-                "Configuration of a gpm run, written once before the first step",
-                &[
-                    (
-                        "format",
-                        json!({"const": "gpm-mcap", "description": "file format tag"}),
-                    ),
-                    ("format_version", count("version of the message layout")),
-                    (
-                        "gpm_version",
-                        json!({"type": "string", "description": "version of the gpm crate that wrote the file"}),
-                    ),
-                    (
-                        "level",
-                        string_enum("recording level", &["none", "diagnostics", "full"]),
-                    ),
-                    (
-                        "particles_every",
-                        count("snapshots and projection inputs every k steps"),
-                    ),
-                    (
-                        "flush_every",
-                        count("a chunk is closed every this many steps"),
-                    ),
-                    (
-                        "compression",
-                        string_enum("chunk compression", &["zstd", "none"]),
-                    ),
-                    ("threads", count("rayon worker threads of the run")),
-                    (
-                        "config",
-                        json!({"description": "the caller's configuration, verbatim (gpm run: {\"scene\", \"config\"})"}),
-                    ),
-                ],
-            ),
-        )
-    }
-}
+impl RunConfig {}
 
 // ---------------------------------------------------------------------------------------------
 // /particles: foxglove.PointCloud
@@ -666,7 +612,9 @@ pub fn role_code(r: &Role) -> u8 {
 }
 
 impl PointCloud {
-    /// A snapshot of particles at `time` (seconds).
+    /// A snapshot of particles at `time` (seconds): one point per position; the slices should
+    /// have one entry per position (a shorter `u`, `p` or `role` ends the cloud early; the
+    /// [`Recorder`](super::Recorder) checks the lengths first and reports a mismatch).
     pub fn from_particles<const D: usize>(
         time: f64,
         x: &[[f64; D]],
@@ -676,18 +624,18 @@ impl PointCloud {
     ) -> Self {
         let stride = 4 * POINT_FIELDS.len();
         let mut bytes = Vec::with_capacity(stride * x.len());
-        for i in 0..x.len() {
+        for (((x, u), p), role) in x.iter().zip(u).zip(p).zip(role) {
             let mut put = |v: f64| bytes.extend_from_slice(&(v as f32).to_le_bytes());
             let c = |a: &[f64; D], k: usize| if k < D { a[k] } else { 0.0 };
             for k in 0..3 {
-                put(c(&x[i], k));
+                put(c(x, k));
             }
             for k in 0..3 {
-                put(c(&u[i], k));
+                put(c(u, k));
             }
-            put(u[i].iter().map(|v| v * v).sum::<f64>().sqrt());
-            put(p[i]);
-            put(role_code(&role[i]) as f64);
+            put(u.iter().map(|v| v * v).sum::<f64>().sqrt());
+            put(*p);
+            put(role_code(role) as f64);
         }
         PointCloud {
             timestamp: Time::from_nanos(super::time_to_nanos(time)),
@@ -772,70 +720,72 @@ impl PointCloud {
     /// JSON Schema of `foxglove.PointCloud` (the structure Foxglove publishes for this schema
     /// name; written here with every property required).
     pub fn schema() -> Value {
-        let vec3 = object(
-            "foxglove.Vector3",
-            &[("x", number("x")), ("y", number("y")), ("z", number("z"))],
-        );
-        let quat = object(
-            "foxglove.Quaternion",
-            &[
-                ("x", number("x")),
-                ("y", number("y")),
-                ("z", number("z")),
-                ("w", number("w")),
-            ],
-        );
-        let numeric_type = json!({
-            "description": "foxglove.NumericType: 0 UNKNOWN, 1 UINT8, 2 INT8, 3 UINT16, 4 INT16, 5 UINT32, 6 INT32, 7 FLOAT32, 8 FLOAT64 (little-endian)",
-            "type": "integer",
-            "enum": [0, 1, 2, 3, 4, 5, 6, 7, 8],
+        let number = json!({"type": "number"});
+        let vector3 = json!({
+            "title": "foxglove.Vector3",
+            "type": "object",
+            "properties": {"x": number, "y": number, "z": number},
+            "required": ["x", "y", "z"],
         });
-        root(
-            SCHEMA_POINT_CLOUD,
-            object(
-                "A collection of N-dimensional points with extra fields per point (gpm: x y z vx vy vz speed p role)",
-                &[
-                    (
-                        "timestamp",
-                        object(
-                            "time of the cloud",
-                            &[
-                                ("sec", count("seconds")),
-                                (
-                                    "nsec",
-                                    json!({"type": "integer", "minimum": 0, "maximum": 999_999_999, "description": "nanoseconds"}),
-                                ),
-                            ],
-                        ),
-                    ),
-                    ("frame_id", json!({"type": "string", "description": "frame of reference"})),
-                    (
-                        "pose",
-                        object(
-                            "foxglove.Pose: origin of the cloud in the frame",
-                            &[("position", vec3), ("orientation", quat)],
-                        ),
-                    ),
-                    ("point_stride", count("bytes between points in data")),
-                    (
-                        "fields",
-                        json!({
-                            "type": "array",
-                            "description": "fields of each point in data",
-                            "items": object("foxglove.PackedElementField", &[
-                                ("name", json!({"type": "string", "description": "field name"})),
-                                ("offset", count("byte offset within a point")),
-                                ("type", numeric_type),
-                            ]),
-                        }),
-                    ),
-                    (
-                        "data",
-                        json!({"type": "string", "contentEncoding": "base64", "description": "points, interpreted with fields"}),
-                    ),
-                ],
-            ),
-        )
+        let quaternion = json!({
+            "title": "foxglove.Quaternion",
+            "type": "object",
+            "properties": {"x": number, "y": number, "z": number, "w": number},
+            "required": ["x", "y", "z", "w"],
+        });
+        let numeric_types = [
+            "UNKNOWN", "UINT8", "INT8", "UINT16", "INT16", "UINT32", "INT32", "FLOAT32", "FLOAT64",
+        ]
+        .iter()
+        .enumerate()
+        .map(|(k, t)| json!({"title": t, "const": k}))
+        .collect::<Vec<_>>();
+        json!({
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "title": SCHEMA_POINT_CLOUD,
+            "description": "A collection of N-dimensional points with extra fields per point (gpm: x y z vx vy vz speed p role)",
+            "type": "object",
+            "properties": {
+                "timestamp": {
+                    "title": "time",
+                    "type": "object",
+                    "properties": {
+                        "sec": {"type": "integer", "minimum": 0},
+                        "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999},
+                    },
+                    "required": ["sec", "nsec"],
+                },
+                "frame_id": {"type": "string", "description": "frame of reference"},
+                "pose": {
+                    "title": "foxglove.Pose",
+                    "description": "origin of the cloud in the frame",
+                    "type": "object",
+                    "properties": {"position": vector3, "orientation": quaternion},
+                    "required": ["position", "orientation"],
+                },
+                "point_stride": {"type": "integer", "minimum": 0, "description": "bytes between points in data"},
+                "fields": {
+                    "type": "array",
+                    "description": "fields of each point in data",
+                    "items": {
+                        "title": "foxglove.PackedElementField",
+                        "type": "object",
+                        "properties": {
+                            "name": {"type": "string"},
+                            "offset": {"type": "integer", "minimum": 0, "description": "byte offset within a point"},
+                            "type": {
+                                "title": "foxglove.NumericType",
+                                "description": "little-endian element type",
+                                "oneOf": numeric_types,
+                            },
+                        },
+                        "required": ["name", "offset", "type"],
+                    },
+                },
+                "data": {"type": "string", "contentEncoding": "base64", "description": "points, interpreted with fields"},
+            },
+            "required": ["timestamp", "frame_id", "pose", "point_stride", "fields", "data"],
+        })
     }
 }
 
@@ -843,7 +793,7 @@ impl PointCloud {
 // Bulk arrays
 
 /// Element type of an [`Array`] (numpy spelling).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 pub enum Dtype {
     /// Little-endian `f64`.
     #[serde(rename = "<f8")]
@@ -867,7 +817,7 @@ impl Dtype {
 }
 
 /// A typed array, exact: little-endian bytes in standard base64, numpy `dtype` and `shape`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Array {
     /// Element type.
@@ -875,6 +825,7 @@ pub struct Array {
     /// Shape (row-major): `[n]` or `[n, D]`.
     pub shape: Vec<usize>,
     /// The bytes, standard base64.
+    #[schemars(extend("contentEncoding" = "base64"))]
     pub data: String,
 }
 
@@ -997,30 +948,6 @@ impl Array {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
-
-    /// JSON Schema of an array.
-    pub fn schema(description: &str) -> Value {
-        object(
-            description,
-            &[
-                (
-                    "dtype",
-                    string_enum(
-                        "numpy dtype: <f8 little-endian f64, <u4 little-endian u32, |u1 u8",
-                        &["<f8", "<u4", "|u1"],
-                    ),
-                ),
-                (
-                    "shape",
-                    json!({"type": "array", "items": {"type": "integer", "minimum": 0}, "description": "row-major shape"}),
-                ),
-                (
-                    "data",
-                    json!({"type": "string", "contentEncoding": "base64", "description": "the bytes, standard base64"}),
-                ),
-            ],
-        )
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1042,7 +969,7 @@ fn to_array<const D: usize>(what: &'static str, v: &[f64]) -> Result<[f64; D], R
 }
 
 /// Periodic axes ([`Periodicity`]): axis `k` has period `len[k]` when it is positive.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PeriodicSpec {
     /// Lower corner of the periodic box.
@@ -1069,20 +996,10 @@ impl PeriodicSpec {
             len: to_array("periodic.len", &self.len)?,
         })
     }
-
-    fn schema() -> Value {
-        object(
-            "periodic axes: axis k has period len[k] when positive",
-            &[
-                ("lo", numbers("lower corner of the periodic box")),
-                ("len", numbers("period per axis (0 = not periodic)")),
-            ],
-        )
-    }
 }
 
 /// Everything [`crate::neighbors::NeighborList::build`] needs besides the positions.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct NeighborSpec {
     /// Influence radius `h`.
@@ -1119,22 +1036,10 @@ impl NeighborSpec {
         Ok(NeighborConfig::new(self.weight, self.h, self.skin)
             .with_periodicity(self.periodic.to_periodicity()?))
     }
-
-    fn schema() -> Value {
-        object(
-            "gpm::neighbors::NeighborConfig",
-            &[
-                ("h", number("influence radius")),
-                ("skin", number("neighbour skin")),
-                ("weight", weight_schema()),
-                ("periodic", PeriodicSpec::schema()),
-            ],
-        )
-    }
 }
 
 /// One planar wall ([`Wall`]).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct WallSpec {
     /// Normal axis.
@@ -1147,8 +1052,10 @@ pub struct WallSpec {
     pub velocity: Vec<f64>,
 }
 
-/// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`]; a
+/// boundary of your own is recorded as [`BoundarySpec::Custom`] (or as an equivalent crate
+/// boundary, if it has one).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum BoundarySpec {
     /// [`NoBoundary`].
@@ -1160,10 +1067,18 @@ pub enum BoundarySpec {
     },
     /// [`Walls`] with mirror ghosts (bit `k` of a ghost's `walls` is `walls[k]`).
     Walls {
-        /// The walls, in order.
+        /// The walls, in order (at most 8: a ghost's wall set is one byte).
+        #[schemars(length(max = 8))]
         walls: Vec<WallSpec>,
         /// Periodic axes.
         periodic: PeriodicSpec,
+    },
+    /// A boundary of the caller's own, described in words: its projection inputs are recorded
+    /// (arrays, parameters, neighbour settings) but cannot be re-run, because gpm cannot
+    /// rebuild the boundary ([`BoundarySpec::build`] fails with [`RecordError::Spec`]).
+    Custom {
+        /// What the boundary is (free text).
+        description: String,
     },
 }
 
@@ -1273,42 +1188,20 @@ impl BoundarySpec {
                 periodic: periodic.to_periodicity()?,
             }),
             BoundarySpec::Walls { .. } => Box::new(self.to_walls::<D>()?),
-        })
-    }
-
-    fn schema() -> Value {
-        let wall = object(
-            "one planar wall x[axis] = position",
-            &[
-                ("axis", count("normal axis")),
-                ("position", number("coordinate of the plane")),
-                (
-                    "inward",
-                    number("+1 when the fluid is at larger coordinates, -1 otherwise"),
-                ),
-                ("velocity", numbers("wall velocity")),
-            ],
-        );
-        json!({
-            "description": "boundary: none, periodic box, or planar walls with mirror ghosts",
-            "oneOf": [
-                object("no boundary", &[("kind", json!({"const": "none"}))]),
-                object("periodic box", &[
-                    ("kind", json!({"const": "periodic"})),
-                    ("periodic", PeriodicSpec::schema()),
-                ]),
-                object("planar walls with mirror ghosts; bit k of a ghost's walls is walls[k]", &[
-                    ("kind", json!({"const": "walls"})),
-                    ("walls", json!({"type": "array", "items": wall, "maxItems": 8})),
-                    ("periodic", PeriodicSpec::schema()),
-                ]),
-            ]
+            BoundarySpec::Custom { description } => {
+                return Err(RecordError::Spec {
+                    what: "boundary",
+                    reason: format!(
+                        "a custom boundary ({description}) cannot be rebuilt from the recording"
+                    ),
+                })
+            }
         })
     }
 }
 
 /// [`ProjectionParams`] in serialisable form.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProjectionSpec {
     /// Density.
@@ -1335,7 +1228,7 @@ pub struct ProjectionSpec {
 }
 
 /// [`VectorKind`] in serialisable form.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum GhostContinuation {
     /// [`VectorKind::Velocity`]: no-slip images.
@@ -1409,42 +1302,6 @@ impl ProjectionSpec {
             gradient: self.gradient,
         })
     }
-
-    fn schema() -> Value {
-        object(
-            "gpm::projection::ProjectionParams",
-            &[
-                ("rho", number("density")),
-                ("nu", number("kinematic viscosity")),
-                ("gravity", numbers("body force")),
-                ("scheme", scheme_schema()),
-                (
-                    "viscous_theta",
-                    number("implicit weight of the viscous term"),
-                ),
-                ("solve", solve_params_schema()),
-                (
-                    "source_ghosts",
-                    string_enum(
-                        "continuation of the source into wall ghosts: mirror (normal component flipped) or velocity (no-slip images)",
-                        &["velocity", "mirror"],
-                    ),
-                ),
-                ("allowed_floating", count("floating components allowed")),
-                (
-                    "reuse_diagnostics",
-                    boolean("connectivity and c0 reused while their inputs are unchanged"),
-                ),
-                (
-                    "gradient",
-                    string_enum(
-                        "gradient of the predictor and the correction: difference (∇h, adjoint to the source) or renormalised (B∇h)",
-                        &["difference", "renormalised"],
-                    ),
-                ),
-            ],
-        )
-    }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1452,7 +1309,7 @@ impl ProjectionSpec {
 
 /// One `/projection_input` message: everything one [`crate::projection::ProjectionStep::project`]
 /// call read, and what it wrote, so that `gpm replay --rerun` can run it again and compare.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ProjectionInput {
     /// Step.
@@ -1462,6 +1319,7 @@ pub struct ProjectionInput {
     /// Time step passed to the projection.
     pub dt: f64,
     /// Dimension `D`.
+    #[schemars(extend("enum" = [2, 3]))]
     pub dimension: usize,
     /// Particles (ghosts included).
     pub particles: usize,
@@ -1554,54 +1412,24 @@ pub fn decode_roles(kind: &Array, source: &Array, walls: &Array) -> Result<Vec<R
         .collect()
 }
 
-impl ProjectionInput {
-    /// JSON Schema of the message (schema name [`SCHEMA_PROJECTION`]).
-    pub fn schema() -> Value {
-        root(
-            SCHEMA_PROJECTION,
-            object(
-                "Inputs and outputs of one projection step, enough to re-run it: positions, volumes, roles, predictor velocity, dt, parameters",
-                &[
-                    ("step", count("step")),
-                    ("time", number("simulation time after the step")),
-                    ("dt", number("time step")),
-                    ("dimension", json!({"type": "integer", "enum": [2, 3], "description": "dimension D"})),
-                    ("particles", count("particles, ghosts included")),
-                    ("threads", count("rayon worker threads of the recording run")),
-                    ("neighbors", NeighborSpec::schema()),
-                    ("boundary", BoundarySpec::schema()),
-                    ("params", ProjectionSpec::schema()),
-                    ("x", Array::schema("positions [n, D] <f8")),
-                    ("vol", Array::schema("volumes [n] <f8")),
-                    ("role_kind", Array::schema("roles [n] |u1: 0 fluid, 1 Dirichlet, 2 ghost")),
-                    ("ghost_source", Array::schema("ghost source particle [n] <u4 (0 for non-ghosts)")),
-                    ("ghost_walls", Array::schema("ghost wall bit set [n] |u1 (0 for non-ghosts)")),
-                    ("u_star", Array::schema("predictor velocity u* [n, D] <f8")),
-                    ("p_in", Array::schema("pressure before the projection [n] <f8")),
-                    ("phi_in", Array::schema("increment before the solve (CG warm start) [n] <f8")),
-                    ("u_out", Array::schema("velocity after the projection [n, D] <f8")),
-                    ("p_out", Array::schema("pressure after the projection [n] <f8")),
-                    ("phi", Array::schema("pressure increment phi [n] <f8")),
-                ],
-            ),
-        )
-    }
-}
-
 /// The schema of every topic: `(topic, schema name, JSON Schema)`.
 pub fn all_schemas() -> Vec<(&'static str, &'static str, Value)> {
     vec![
-        (TOPIC_CONFIG, SCHEMA_CONFIG, RunConfig::schema()),
+        (
+            TOPIC_CONFIG,
+            SCHEMA_CONFIG,
+            message_schema::<RunConfig>(SCHEMA_CONFIG),
+        ),
         (
             TOPIC_DIAGNOSTICS,
             SCHEMA_DIAGNOSTICS,
-            StepDiagnostics::schema(),
+            message_schema::<StepDiagnostics>(SCHEMA_DIAGNOSTICS),
         ),
         (TOPIC_PARTICLES, SCHEMA_POINT_CLOUD, PointCloud::schema()),
         (
             TOPIC_PROJECTION,
             SCHEMA_PROJECTION,
-            ProjectionInput::schema(),
+            message_schema::<ProjectionInput>(SCHEMA_PROJECTION),
         ),
     ]
 }
