@@ -76,5 +76,6 @@ pub mod record;
 pub mod reference;
 pub mod sampling;
 pub mod scene;
+pub mod setup;
 
 pub use error::{Error, Result};

@@ -1332,6 +1332,9 @@ pub struct ProjectionSpec {
     /// Gradient of the predictor and the correction (files before it was recorded: difference).
     #[serde(default)]
     pub gradient: crate::consistent::GradientKind,
+    /// Divergence of the source (files before it was recorded: sum form).
+    #[serde(default)]
+    pub source: crate::projection::SourceKind,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1377,6 +1380,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             allowed_floating,
             reuse_diagnostics,
             gradient,
+            source,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1389,6 +1393,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             allowed_floating,
             reuse_diagnostics,
             gradient,
+            source,
         }
     }
 }
@@ -1407,6 +1412,7 @@ impl ProjectionSpec {
             allowed_floating: self.allowed_floating,
             reuse_diagnostics: self.reuse_diagnostics,
             gradient: self.gradient,
+            source: self.source,
         })
     }
 
@@ -1440,6 +1446,13 @@ impl ProjectionSpec {
                     string_enum(
                         "gradient of the predictor and the correction: difference (∇h, adjoint to the source) or renormalised (B∇h)",
                         &["difference", "renormalised"],
+                    ),
+                ),
+                (
+                    "source",
+                    string_enum(
+                        "divergence of the source: sum_form (∇̂h·), adjoint_bt (∇̂h·(Bᵀ·)) or renormalised (∇ᶜ·)",
+                        &["sum_form", "adjoint_bt", "renormalised"],
                     ),
                 ),
             ],
