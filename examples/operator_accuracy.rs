@@ -39,7 +39,7 @@
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use gpm::boundary::{Boundary, VectorKind};
+use gpm::boundary::Boundary;
 use gpm::consistent::*;
 use gpm::diagnostics::connectivity;
 use gpm::flow::{Motion, Simulation};
@@ -1273,7 +1273,7 @@ mod projection {
 // =============================================================================================
 mod flows {
     use super::*;
-    use gpm::flow::{Stage, VolumeRule};
+    use gpm::flow::VolumeRule;
     use gpm::projection::SourceKind;
     use gpm::scene::cavity::{build, ghia_errors, sample_positions, sample_profiles, CavityConfig};
     use gpm::scene::taylor_green::{self, TaylorGreenConfig};
