@@ -109,14 +109,8 @@ fn short_fields_are_named_by_predict_and_project() {
             }
         );
         let us = p0.u.clone();
-        let e = input_err(ProjectionStep::new().project(
-            &mut p,
-            &nl,
-            &walls,
-            &params(0.01),
-            0.01,
-            &us,
-        ));
+        let e =
+            input_err(ProjectionStep::new().project(&mut p, &nl, &walls, &params(0.01), 0.01, &us));
         assert_eq!(
             e,
             InputError::LengthMismatch {
@@ -176,7 +170,10 @@ fn a_short_accel_is_named() {
         Some(&acc),
         &mut Vec::new(),
     ));
-    assert!(matches!(e, InputError::LengthMismatch { field: "accel", .. }), "{e:?}");
+    assert!(
+        matches!(e, InputError::LengthMismatch { field: "accel", .. }),
+        "{e:?}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -368,9 +365,14 @@ fn h_at_the_spacing_is_named_by_the_step() {
         p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
     }
     let nl = NeighborList::build(NeighborConfig::new(Weight::WendlandC2, dx, 0.0), &p.x).unwrap();
-    match input_err(ProjectionStep::new().step(&mut p, &nl, &NoBoundary, &params(0.0), 0.01, None)) {
+    match input_err(ProjectionStep::new().step(&mut p, &nl, &NoBoundary, &params(0.0), 0.01, None))
+    {
         InputError::RadiusTooSmall {
-            h, min_spacing, i, j, ..
+            h,
+            min_spacing,
+            i,
+            j,
+            ..
         } => {
             assert_eq!(h, dx);
             assert_eq!(min_spacing, dx);
@@ -403,7 +405,11 @@ fn connectivity_is_checked_before_the_viscous_solve() {
         }
         other => panic!("{other:?}"),
     }
-    assert_eq!(step.viscous_info().iters, 0, "the viscous solve must not have run");
+    assert_eq!(
+        step.viscous_info().iters,
+        0,
+        "the viscous solve must not have run"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -485,11 +491,24 @@ fn div_before_and_after_are_measured_alike_with_a_dirichlet_band() {
         .project(&mut p, &nl, &NoBoundary, &prm, 0.01, &us)
         .unwrap();
     let after = measure(&p.u, &p.role, &p.vol);
-    assert!((r.div_before - before).abs() <= 1e-12 * before, "{} {before}", r.div_before);
-    assert!((r.div_after - after).abs() <= 1e-12 * before, "{} {after}", r.div_after);
+    assert!(
+        (r.div_before - before).abs() <= 1e-12 * before,
+        "{} {before}",
+        r.div_before
+    );
+    assert!(
+        (r.div_after - after).abs() <= 1e-12 * before,
+        "{} {after}",
+        r.div_after
+    );
     // the projection (approximate: ∇̂h·∇h ≠ Δh) lowers the divergence the source sees: by two
     // orders of magnitude inside, barely at the band's edge, where the masked field jumps
-    assert!(r.div_after < r.div_before, "{} -> {}", r.div_before, r.div_after);
+    assert!(
+        r.div_after < r.div_before,
+        "{} -> {}",
+        r.div_before,
+        r.div_after
+    );
     let masked = |u: &[[f64; 2]]| -> Vec<[f64; 2]> {
         u.iter()
             .zip(&p.role)
@@ -500,15 +519,23 @@ fn div_before_and_after_are_measured_alike_with_a_dirichlet_band() {
         div_sum(&nl, &p.vol, &masked(&us)),
         div_sum(&nl, &p.vol, &masked(&p.u)),
     );
-    let inside = |i: &usize| {
-        p.role[*i].is_fluid() && p.x[*i].iter().all(|&c| (0.3..0.7).contains(&c))
-    };
-    let m0 = (0..p.len()).filter(inside).map(|i| d0[i].abs()).fold(0.0, f64::max);
-    let m1 = (0..p.len()).filter(inside).map(|i| d1[i].abs()).fold(0.0, f64::max);
+    let inside =
+        |i: &usize| p.role[*i].is_fluid() && p.x[*i].iter().all(|&c| (0.3..0.7).contains(&c));
+    let m0 = (0..p.len())
+        .filter(inside)
+        .map(|i| d0[i].abs())
+        .fold(0.0, f64::max);
+    let m1 = (0..p.len())
+        .filter(inside)
+        .map(|i| d1[i].abs())
+        .fold(0.0, f64::max);
     assert!(m1 < 0.05 * m0, "inside: {m0} -> {m1}");
     // measured with the band's velocities, the result would differ
     let unmasked = norm_l2(&p.vol, &div_sum(&nl, &p.vol, &p.u), &p.role, Region::Omega);
-    assert!((unmasked - after).abs() > 1e-3 * after, "{unmasked} {after}");
+    assert!(
+        (unmasked - after).abs() > 1e-3 * after,
+        "{unmasked} {after}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -598,8 +625,11 @@ fn jittered_cloud(n: usize) -> (Vec<[f64; 2]>, NeighborList<2>, Vec<f64>) {
     let dx = 1.0 / n as f64;
     let mut x = lattice([0.0, 0.0], [1.0, 1.0], dx);
     jitter(&mut x, 0.2 * dx, 7);
-    let nl = NeighborList::build(NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0), &x)
-        .unwrap();
+    let nl = NeighborList::build(
+        NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0),
+        &x,
+    )
+    .unwrap();
     let vol = number_density_volumes(&nl);
     (x, nl, vol)
 }
@@ -611,7 +641,12 @@ fn the_consistent_divergence_is_exact_for_linear_fields() {
     // div (a + B x) = B00 + B11 = 2.5 - 0.75
     let v: Vec<[f64; 2]> = x
         .iter()
-        .map(|p| [0.3 + 2.5 * p[0] - 1.0 * p[1], -0.2 + 0.4 * p[0] - 0.75 * p[1]])
+        .map(|p| {
+            [
+                0.3 + 2.5 * p[0] - 1.0 * p[1],
+                -0.2 + 0.4 * p[0] - 0.75 * p[1],
+            ]
+        })
         .collect();
     let mut renorm = Renormalisation::new();
     let (mut work, mut out) = (Vec::new(), Vec::new());
@@ -681,7 +716,9 @@ fn the_adjoint_source_is_adjoint_to_the_renormalised_gradient() {
     let rhs: f64 = -(0..x.len())
         .map(|i| vol[i] * (psi[i][0] * g[i][0] + psi[i][1] * g[i][1]))
         .sum::<f64>();
-    let scale: f64 = (0..x.len()).map(|i| vol[i] * div[i].abs() * phi[i].abs()).sum();
+    let scale: f64 = (0..x.len())
+        .map(|i| vol[i] * div[i].abs() * phi[i].abs())
+        .sum();
     assert!((lhs - rhs).abs() <= 1e-12 * scale, "{lhs} vs {rhs}");
 }
 
@@ -769,7 +806,10 @@ fn update_after_a_move_keeps_the_configuration_valid() {
         pred.add_to(&mut r);
         assert!(r.timings.predictor > 0.0);
     }
-    assert!(rebuilt, "the particles moved past the skin: the list must have searched again");
+    assert!(
+        rebuilt,
+        "the particles moved past the skin: the list must have searched again"
+    );
 }
 
 #[test]
@@ -777,7 +817,10 @@ fn wall_set_constructors() {
     // channel: walls at y = lo and y = hi, periodic in x
     let w = Walls::<2>::channel([0.0, -0.5], [2.0, 0.5]);
     assert_eq!(w.walls.len(), 2);
-    assert!(w.walls.iter().all(|w| w.axis == 1 && w.velocity == [0.0; 2]));
+    assert!(w
+        .walls
+        .iter()
+        .all(|w| w.axis == 1 && w.velocity == [0.0; 2]));
     let lo = w.walls.iter().find(|w| w.inward > 0.0).unwrap();
     let hi = w.walls.iter().find(|w| w.inward < 0.0).unwrap();
     assert_eq!((lo.position, hi.position), (-0.5, 0.5));
@@ -796,12 +839,21 @@ fn wall_set_constructors() {
     let c = Walls::<2>::cavity(1.0, 2.0);
     let moving: Vec<_> = c.walls.iter().filter(|w| w.velocity != [0.0; 2]).collect();
     assert_eq!(moving.len(), 1);
-    assert_eq!((moving[0].axis, moving[0].position, moving[0].velocity), (1, 1.0, [2.0, 0.0]));
+    assert_eq!(
+        (moving[0].axis, moving[0].position, moving[0].velocity),
+        (1, 1.0, [2.0, 0.0])
+    );
     // a channel flow set up and projected: particles wrap in x, ghosts only across y
     let dx = 0.05;
     let mut p = Particles::<2>::new();
     for x in lattice([0.0, -0.5], [2.0, 0.5], dx) {
-        p.push(x, [1.0 - 4.0 * x[1] * x[1], 0.1 * (PI * x[0]).sin()], 0.0, dx * dx, Role::Fluid);
+        p.push(
+            x,
+            [1.0 - 4.0 * x[1] * x[1], 0.1 * (PI * x[0]).sin()],
+            0.0,
+            dx * dx,
+            Role::Fluid,
+        );
     }
     let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0);
     let nl = prepare(&mut p, &w, config, VolumeRule::NumberDensity).unwrap();

@@ -130,7 +130,10 @@ pub fn check_field<const D: usize>(
             expected: if ghosts_optional { first } else { n },
         });
     }
-    if let Some(i) = (0..first).into_par_iter().find_first(|&i| !is_finite(&v[i])) {
+    if let Some(i) = (0..first)
+        .into_par_iter()
+        .find_first(|&i| !is_finite(&v[i]))
+    {
         return Err(InputError::NonFinite { field, particle: i });
     }
     Ok(())

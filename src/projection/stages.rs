@@ -159,7 +159,9 @@ pub fn measure_divergence<const D: usize>(
     div: &mut Vec<f64>,
 ) -> f64 {
     source_field(role, boundary, ghost_rule, 1.0, v, work);
-    divergence_into(nl, vol, role, boundary, ghost_rule, kind, renorm, work, work2, div);
+    divergence_into(
+        nl, vol, role, boundary, ghost_rule, kind, renorm, work, work2, div,
+    );
     norm_l2(vol, div, role, Region::Omega)
 }
 

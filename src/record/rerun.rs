@@ -141,7 +141,14 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     }
     let mut step = ProjectionStep::<D>::new();
     step.phi = phi_in;
-    step.project(&mut particles, &nl, boundary.as_ref(), &params, m.dt, &u_star)?;
+    step.project(
+        &mut particles,
+        &nl,
+        boundary.as_ref(),
+        &params,
+        m.dt,
+        &u_star,
+    )?;
     let flat = |v: &[[f64; D]]| v.iter().flatten().copied().collect::<Vec<f64>>();
     let (max_du, rel_du, su) = diff(&flat(&particles.u), &flat(&u_out));
     let (max_dp, rel_dp, sp) = diff(&particles.p, &p_out);
