@@ -431,9 +431,9 @@ pub struct ProjectionStep<const D: usize> {
     /// The implicit viscous solver and its caches.
     pub viscous: HelmholtzSolver,
     /// `u*` of the last [`step`](Self::step) (a caller of `predict` owns its own).
-    u_star: Vec<[f64; D]>,
+    own_u_star: Vec<[f64; D]>,
     /// `u*` with its ghosts refilled (the projection's copy).
-    us: Vec<[f64; D]>,
+    u_star: Vec<[f64; D]>,
     u_new: Vec<[f64; D]>,
     p_new: Vec<f64>,
     work_vec: Vec<[f64; D]>,
@@ -453,7 +453,7 @@ impl<const D: usize> ProjectionStep<D> {
 
     /// The predictor velocity `u*` of the last [`step`](Self::step) (ghosts filled).
     pub fn u_star(&self) -> &[[f64; D]] {
-        &self.us
+        &self.u_star
     }
 
     /// The last implicit viscous solve (default when none ran).
@@ -487,7 +487,7 @@ impl<const D: usize> ProjectionStep<D> {
         dt: f64,
         accel: Option<&[[f64; D]]>,
     ) -> Result<StepReport, Error> {
-        let mut u_star = std::mem::take(&mut self.u_star);
+        let mut u_star = std::mem::take(&mut self.own_u_star);
         let r = self
             .predict(particles, nl, boundary, params, dt, accel, &mut u_star)
             .and_then(|pred| {
@@ -495,7 +495,7 @@ impl<const D: usize> ProjectionStep<D> {
                 pred.add_to(&mut r);
                 Ok(r)
             });
-        self.u_star = u_star;
+        self.own_u_star = u_star;
         r
     }
 
@@ -768,17 +768,18 @@ impl<const D: usize> ProjectionStep<D> {
         let role = &particles.role;
         let vol = &particles.vol;
         // 2. u* on every particle, ghosts refilled from their sources
-        self.us.clear();
-        self.us.extend_from_slice(&u_star[..u_star.len().min(n)]);
-        self.us.resize(n, [0.0; D]);
+        self.u_star.clear();
+        self.u_star
+            .extend_from_slice(&u_star[..u_star.len().min(n)]);
+        self.u_star.resize(n, [0.0; D]);
         if ghosts {
-            boundary.fill_vector(role, &mut self.us, VectorKind::Velocity);
+            boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
         }
         let mut capture = self.capture.then(|| ProjectionCapture {
             x: particles.x.clone(),
             vol: vol.clone(),
             role: role.clone(),
-            u_star: self.us.clone(),
+            u_star: self.u_star.clone(),
             p_in: particles.p.clone(),
             phi_in: {
                 let mut v = self.phi.clone();
@@ -792,7 +793,14 @@ impl<const D: usize> ProjectionStep<D> {
         // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band)
         let t = Instant::now();
         let f = &mut self.work_vec2;
-        stages::source_field(role, boundary, params.source_ghosts, -rho / dt, &self.us, f);
+        stages::source_field(
+            role,
+            boundary,
+            params.source_ghosts,
+            -rho / dt,
+            &self.u_star,
+            f,
+        );
         stages::divergence_into(
             nl,
             vol,
@@ -836,7 +844,7 @@ impl<const D: usize> ProjectionStep<D> {
         self.gradient.apply_into(nl, vol, &self.phi, gphi);
         if plan.rotational {
             self.work.resize(n, 0.0);
-            div_sum_into(nl, vol, &self.us, &mut self.work);
+            div_sum_into(nl, vol, &self.u_star, &mut self.work);
         }
         self.u_new.clone_from(&particles.u);
         self.p_new.clone_from(&particles.p);
@@ -844,7 +852,7 @@ impl<const D: usize> ProjectionStep<D> {
             role,
             params,
             dt,
-            &self.us,
+            &self.u_star,
             &self.phi,
             gphi,
             &self.work,
