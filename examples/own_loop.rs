@@ -7,10 +7,10 @@
 //! ```text
 //! for each step:
 //!     nl.update(&x)                                  // neighbours at xⁿ
-//!     step.predict(&mut particles, &nl, .., dt, Some(&my_forces))
+//!     step.predict(&mut particles, &nl, .., dt, Some(&my_forces), &mut u_star)
 //!     x += dt · u*                                   // your advection
 //!     nl.update(&x)                                  // neighbours at x*
-//!     report = step.project(&mut particles, &nl, .., dt)
+//!     report = step.project(&mut particles, &nl, .., dt, &u_star)
 //! ```
 //!
 //! The flow is a Taylor–Green vortex in a periodic box with a user-supplied drag force, run for a
@@ -104,6 +104,7 @@ pub fn user_loop(
     let mut step = ProjectionStep::<2>::new();
     let (dt, drag) = (cfg.dt, cfg.drag);
     let mut reports = Vec::new();
+    let mut u_star = Vec::new();
     for k in 1..=cfg.steps as u64 {
         // capture the projection's inputs only where the recorder takes a snapshot
         let snapshot = rec.as_ref().is_some_and(|r| r.wants_snapshot(k));
@@ -116,18 +117,25 @@ pub fn user_loop(
             .iter()
             .map(|u| [-drag * u[0], -drag * u[1]])
             .collect();
-        let predictor_seconds =
-            step.predict(&mut particles, &nl, &boundary, &params, dt, Some(&forces))?;
+        let prediction = step.predict(
+            &mut particles,
+            &nl,
+            &boundary,
+            &params,
+            dt,
+            Some(&forces),
+            &mut u_star,
+        )?;
         // the user's own advection with the predictor velocity, then periodic wrap
-        for (x, u) in particles.x.iter_mut().zip(&step.u_star) {
+        for (x, u) in particles.x.iter_mut().zip(&u_star) {
             x[0] += dt * u[0];
             x[1] += dt * u[1];
             periodic.wrap(x);
         }
         nl.update(&particles.x)?;
         particles.vol = number_density_volumes(&nl);
-        let mut report = step.project(&mut particles, &nl, &boundary, &params, dt)?;
-        report.timings.predictor = predictor_seconds;
+        let mut report = step.project(&mut particles, &nl, &boundary, &params, dt, &u_star)?;
+        prediction.add_to(&mut report);
         if let Some(rec) = rec.as_mut() {
             let boundary = boundary.to_spec();
             let projection =

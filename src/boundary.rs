@@ -54,6 +54,16 @@ pub trait Boundary<const D: usize>: Send + Sync {
         let _ = walls;
         (1.0, [0.0; D])
     }
+    /// Checks that the ghosts of `p` are those this boundary would make and place for an
+    /// influence radius `h`: for [`Walls`], every ghost at the image of its source with its
+    /// source's volume (so [`place_ghosts`](Self::place_ghosts) ran after the last move), and an
+    /// image for every fluid particle closer than `h` to a wall or a corner (so
+    /// [`make_ghosts`](Self::make_ghosts) ran with a reach of at least `h`). `O(N)`. The default
+    /// (no ghosts) accepts anything.
+    fn check_ghosts(&self, p: &Particles<D>, h: f64) -> Result<(), InputError> {
+        let _ = (p, h);
+        Ok(())
+    }
 }
 
 /// One planar wall `x_axis = position`, with the fluid on the `inward` side.
@@ -114,6 +124,36 @@ impl<const D: usize> Walls<D> {
         Walls {
             walls,
             periodic: Periodicity::none(),
+        }
+    }
+
+    /// A channel: stationary walls at `x_{D−1} = lo[D−1]` and `x_{D−1} = hi[D−1]` (for `D = 2`,
+    /// `y = lo` and `y = hi`), periodic along every other axis `a` with period `hi[a] − lo[a]`
+    /// (a plane Poiseuille or Couette set-up; set a wall's `velocity` for Couette).
+    pub fn channel(lo: [f64; D], hi: [f64; D]) -> Self {
+        let a = D - 1;
+        let mut len = [0.0; D];
+        for k in 0..a {
+            len[k] = hi[k] - lo[k];
+        }
+        let mut plo = lo;
+        plo[a] = 0.0;
+        Walls {
+            walls: vec![
+                Wall {
+                    axis: a,
+                    position: lo[a],
+                    inward: 1.0,
+                    velocity: [0.0; D],
+                },
+                Wall {
+                    axis: a,
+                    position: hi[a],
+                    inward: -1.0,
+                    velocity: [0.0; D],
+                },
+            ],
+            periodic: Periodicity { lo: plo, len },
         }
     }
 
@@ -284,6 +324,84 @@ impl<const D: usize> Boundary<D> for Walls<D> {
                 );
             }
         }
+    }
+
+    fn check_ghosts(&self, p: &Particles<D>, h: f64) -> Result<(), InputError> {
+        let first = first_ghost(&p.role);
+        let tol = 1e-9 * h;
+        let mut present = std::collections::HashSet::new();
+        for g in first..p.len() {
+            let Role::Ghost { source, walls } = p.role[g] else {
+                continue; // order checked by the caller
+            };
+            let s = source as usize;
+            if s >= first {
+                return Err(InputError::BadGhostSource {
+                    particle: g,
+                    source_particle: s,
+                });
+            }
+            let y = self.image(&p.x[s], walls);
+            let off = (0..D)
+                .map(|a| (p.x[g][a] - y[a]).abs())
+                .fold(0.0f64, f64::max);
+            if !(off <= tol) {
+                return Err(InputError::Ghost {
+                    particle: g,
+                    reason: format!(
+                        "it is {off:e} away from the image of its source {s} across the walls \
+                         {walls:#b}: call Boundary::place_ghosts after moving particles"
+                    ),
+                });
+            }
+            if p.vol[g] != p.vol[s] {
+                return Err(InputError::Ghost {
+                    particle: g,
+                    reason: format!(
+                        "its volume {} differs from its source {s}'s {}: call \
+                         Boundary::place_ghosts after computing volumes",
+                        p.vol[g], p.vol[s]
+                    ),
+                });
+            }
+            present.insert((source, walls));
+        }
+        let nw = self.walls.len();
+        for i in 0..first {
+            if !p.role[i].is_fluid() {
+                continue;
+            }
+            let x = p.x[i];
+            let near: Vec<usize> = (0..nw)
+                .filter(|&k| self.walls[k].distance(&x) < h)
+                .collect();
+            for subset in 1u32..(1 << near.len()) {
+                let ks: Vec<usize> = (0..near.len())
+                    .filter(|b| subset & (1 << b) != 0)
+                    .map(|b| near[b])
+                    .collect();
+                let mut axes: Vec<usize> = ks.iter().map(|&k| self.walls[k].axis).collect();
+                axes.sort_unstable();
+                axes.dedup();
+                if axes.len() != ks.len() {
+                    continue;
+                }
+                let mask: u8 = ks.iter().fold(0u8, |m, &k| m | (1 << k));
+                if !present.contains(&(i as u32, mask)) {
+                    let distance = ks
+                        .iter()
+                        .map(|&k| self.walls[k].distance(&x))
+                        .fold(f64::NEG_INFINITY, f64::max);
+                    return Err(InputError::MissingGhost {
+                        particle: i,
+                        walls: mask,
+                        distance,
+                        h,
+                    });
+                }
+            }
+        }
+        Ok(())
     }
 
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError> {

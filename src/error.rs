@@ -115,6 +115,40 @@ pub enum InputError {
         /// Which bound it violates.
         reason: String,
     },
+    /// The neighbour list was not measured at the current positions (the particles moved, or
+    /// the ghosts were placed, after its last update).
+    #[error("neighbour list out of date at particle {particle}: {reason}")]
+    StaleNeighbors {
+        /// The first particle whose row does not match.
+        particle: usize,
+        /// What differs, and the fix.
+        reason: String,
+    },
+    /// A ghost particle that is not where the boundary puts it, or stored out of order.
+    #[error("ghost particle {particle}: {reason}")]
+    Ghost {
+        /// The particle.
+        particle: usize,
+        /// What is wrong, and the fix.
+        reason: String,
+    },
+    /// A fluid particle closer than `h` to a wall (or a corner) without its mirror image: the
+    /// ghosts were made with a reach below `h`.
+    #[error(
+        "fluid particle {particle} is {distance:e} from the wall(s) {walls:#b}, closer than \
+         h = {h}, but has no ghost image there: make the ghosts with a reach of at least h \
+         (h + skin for a moving list)"
+    )]
+    MissingGhost {
+        /// The fluid particle.
+        particle: usize,
+        /// Bit mask of the walls of the missing image.
+        walls: u8,
+        /// Its largest distance to those walls.
+        distance: f64,
+        /// The influence radius.
+        h: f64,
+    },
 }
 
 impl InputError {

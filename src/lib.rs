@@ -76,6 +76,7 @@ pub mod record;
 pub mod reference;
 pub mod sampling;
 pub mod scene;
+pub mod setup;
 pub mod time;
 
 pub use error::{Error, Result};

@@ -187,9 +187,8 @@ fn non_finite_positions_velocities_and_pressures_are_named() {
 
 #[test]
 fn projection_step_on_non_finite_input_fails_without_panicking() {
-    // the bare projection step does not validate the particles (the caller's loop does, or
-    // Simulation::advance); a NaN must still come back as an error, never as a panic or as
-    // a "successful" step
+    // the bare projection step validates the particles: a NaN comes back as an input error
+    // naming the particle, never as a panic, a solve failure or a "successful" step
     let n = 10;
     let dx = 1.0 / n as f64;
     let walls = Walls::<2>::cavity(1.0, 1.0);
@@ -210,10 +209,9 @@ fn projection_step_on_non_finite_input_fails_without_panicking() {
             params.solve.max_iters = 500;
             let r = ProjectionStep::new().step(&mut p, &nl, &walls, &params, 0.005, None);
             match r {
-                Err(Error::Solve(SolveError::NonFinite { .. }))
-                | Err(Error::Solve(SolveError::NoConvergence { .. }))
-                | Err(Error::Solve(SolveError::NotPositiveDefinite { .. })) => {}
-                other => panic!("{what} NaN with {solver}: expected a solve error, got {other:?}"),
+                Err(Error::Input(InputError::NonFinite { particle: 42, .. }))
+                | Err(Error::Input(InputError::BadVolume { particle: 42, .. })) => {}
+                other => panic!("{what} NaN with {solver}: expected an input error, got {other:?}"),
             }
         }
     }
@@ -376,7 +374,7 @@ fn radius_at_or_below_the_spacing_is_named() {
     assert!((r - 0.05).abs() < 1e-12 && (i, j) == (0, 2), "{r} {i} {j}");
     let (r, i, j) = closest_pair(&x, &Periodicity::none()).unwrap();
     assert!((r - 0.47).abs() < 1e-12 && (i, j) == (1, 2), "{r} {i} {j}");
-    // the bare projection step on such a list reports every fluid particle isolated
+    // the bare projection step on such a list names h and the spacing too
     let p0 = square(n);
     let nl = NeighborList::build(NeighborConfig::new(Weight::WendlandC2, dx, 0.0), &p0.x).unwrap();
     assert_eq!(nl.n_pairs(), 0);
@@ -389,9 +387,8 @@ fn radius_at_or_below_the_spacing_is_named() {
         0.01,
         None,
     ) {
-        Err(Error::Connectivity(c)) => {
-            assert_eq!(c.offending, (0..n * n).collect::<Vec<_>>());
-            assert_eq!(c.isolated, n * n);
+        Err(Error::Input(InputError::RadiusTooSmall { h, min_spacing, .. })) => {
+            assert_eq!((h, min_spacing), (dx, dx));
         }
         other => panic!("{other:?}"),
     }

@@ -506,13 +506,15 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             None
         };
         let proj = &self.params.projection;
-        let t_pred = self.projection.predict(
+        let mut u_star = Vec::new();
+        let pred = self.projection.predict(
             &mut self.particles,
             &self.nl,
             &self.boundary,
             proj,
             dt,
             accel,
+            &mut u_star,
         )?;
         let mut advect_seconds = 0.0;
         if lagrangian {
@@ -522,7 +524,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             for i in 0..n {
                 if p.role[i].is_fluid() {
                     for a in 0..D {
-                        p.x[i][a] += dt * self.projection.u_star[i][a];
+                        p.x[i][a] += dt * u_star[i][a];
                     }
                 }
             }
@@ -538,8 +540,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &self.boundary,
             &self.params.projection,
             dt,
+            &u_star,
         )?;
-        report.timings.predictor = t_pred;
+        pred.add_to(&mut report);
         let mut max_shift = 0.0;
         if self.plan.has(Stage::Shifting) {
             let t1 = Instant::now();

@@ -140,9 +140,15 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
         particles.push(x[i], u_star[i], p_in[i], vol[i], role[i]);
     }
     let mut step = ProjectionStep::<D>::new();
-    step.u_star = u_star;
     step.phi = phi_in;
-    step.project(&mut particles, &nl, boundary.as_ref(), &params, m.dt)?;
+    step.project(
+        &mut particles,
+        &nl,
+        boundary.as_ref(),
+        &params,
+        m.dt,
+        &u_star,
+    )?;
     let flat = |v: &[[f64; D]]| v.iter().flatten().copied().collect::<Vec<f64>>();
     let (max_du, rel_du, su) = diff(&flat(&particles.u), &flat(&u_out));
     let (max_dp, rel_dp, sp) = diff(&particles.p, &p_out);

@@ -32,6 +32,7 @@ use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
 use crate::particles::Role;
 use crate::poisson::{AmgSetup, SolveParams, SolverKind};
+use crate::projection::SourceKind;
 use crate::projection::{ProjectionParams, Scheme, StepReport};
 use base64::Engine as _;
 use schemars::{json_schema, JsonSchema, Schema, SchemaGenerator};
@@ -129,6 +130,11 @@ unit_enum_schema!(
     Scheme,
     "pressure-correction scheme",
     [NonIncremental, Incremental, Rotational]
+);
+unit_enum_schema!(
+    SourceKind,
+    "divergence of the source: sum_form (∇̂h·), adjoint_bt (∇̂h·(Bᵀ·)) or renormalised (∇ᶜ·)",
+    [SumForm, AdjointBt, Renormalised]
 );
 unit_enum_schema!(
     GradientKind,
@@ -1225,6 +1231,9 @@ pub struct ProjectionSpec {
     /// Gradient of the predictor and the correction (files before it was recorded: difference).
     #[serde(default)]
     pub gradient: crate::consistent::GradientKind,
+    /// Divergence of the source (files before it was recorded: sum form).
+    #[serde(default)]
+    pub source: crate::projection::SourceKind,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1270,6 +1279,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             allowed_floating,
             reuse_diagnostics,
             gradient,
+            source,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1282,6 +1292,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             allowed_floating,
             reuse_diagnostics,
             gradient,
+            source,
         }
     }
 }
@@ -1300,6 +1311,7 @@ impl ProjectionSpec {
             allowed_floating: self.allowed_floating,
             reuse_diagnostics: self.reuse_diagnostics,
             gradient: self.gradient,
+            source: self.source,
         })
     }
 }

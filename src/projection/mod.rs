@@ -1,0 +1,899 @@
+//! The incremental pressure-Poisson projection step (MISSION §4), as a module a particle code can
+//! call from its own loop.
+//!
+//! Given `xⁿ, uⁿ, pⁿ` and a neighbour list at `xⁿ`, one [`ProjectionStep::step`]:
+//!
+//! 1. checks its input ([`checks`]: lengths, finiteness, volumes, a neighbour list measured at
+//!    these positions, ghosts placed and made with a reach of at least `h`, `h` above the
+//!    spacing) and h-connectivity (before any solve, the viscous one included), and computes `c0`;
+//! 2. predicts `u* − θΔtν Δh u* = uⁿ + Δt ((1−θ) ν Δh uⁿ + g + a_extra − ∇h pⁿ / ρ)` (the
+//!    pressure term only in the incremental schemes; `θ = ½` is Crank–Nicolson, solved with a
+//!    symmetric Helmholtz system, `θ = 0` is explicit);
+//! 3. solves `−Δh φ = ∇̂h·f` with `f = −(ρ/Δt) u*` (sum-form divergence for the source by
+//!    default; see [`SourceKind`] for the variants);
+//! 4. corrects `uⁿ⁺¹ = u* − (Δt/ρ) ∇h φ` (difference gradient by default, see
+//!    [`ProjectionParams::gradient`]) and sets `pⁿ⁺¹ = φ` (non-incremental), `pⁿ + φ` (standard
+//!    incremental) or `pⁿ + φ − ρθν ∇̂h·u*` (rotational incremental, Timmermans et al. 1996, with
+//!    `θ` the implicit weight of the viscous term);
+//! 5. returns a [`StepReport`] with the diagnostics: connectivity, `c0`, the Theorem 4.5 ratio
+//!    `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)`, the solve, divergence before and after, energy and timings.
+//!
+//! The pair `∇̂h·` / `∇h` is discretely adjoint (Lemma 4.3), which is why the source uses one and
+//! the correction the other. Advection and particle shifting are the caller's business (see
+//! [`crate::flow`] for a complete solver). The step holds only scratch memory: the caller owns
+//! the particles and the predictor velocity `u*`.
+//!
+//! **Stages.** [`ProjectionStep::predict`] and [`ProjectionStep::project`] are made of the public
+//! stages of [`stages`] ([`stages::source_field`], [`stages::divergence_into`], the Poisson solve
+//! [`crate::poisson::PoissonSolver::solve`], [`stages::correct`], [`stages::measure`]), which a
+//! caller can also run one by one; [`ProjectionPlan`] decides which of them run.
+//!
+//! **A one-off `project`.** With an incremental scheme `project` returns `pⁿ⁺¹ = pⁿ + φ`, and
+//! `φ ≈ (ρ/Δt)·(potential of u*)`: projecting a field that did not come from a predictor (an
+//! initial condition, a random field) leaves a pressure of order `ρ/Δt` that the next incremental
+//! `predict` re-applies as `−∇h p/ρ`. Use [`Scheme::NonIncremental`] for such a one-off projection
+//! (`pⁿ⁺¹ = φ`), or reset the pressure afterwards ([`ProjectionStep::reset_pressure`]).
+
+pub mod checks;
+pub mod stages;
+
+use crate::boundary::{Boundary, VectorKind};
+use crate::consistent::{GradientKind, GradientOperator};
+use crate::diagnostics::{
+    connectivity, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio, Components,
+    ConnectivitySummary, Region,
+};
+use crate::error::{Error, InputError};
+use crate::neighbors::NeighborList;
+use crate::operators::div_sum_into;
+use crate::particles::Particles;
+use crate::poisson::{HelmholtzSolver, PoissonSolver, SolveInfo, SolveParams};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Pressure-correction scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Chorin's projection: the predictor has no pressure gradient and `pⁿ⁺¹ = φ`.
+    NonIncremental,
+    /// Standard incremental (Goda/van Kan): `pⁿ⁺¹ = pⁿ + φ`.
+    Incremental,
+    /// Rotational incremental (Timmermans et al.): `pⁿ⁺¹ = pⁿ + φ − ρν ∇̂h·u*`.
+    #[default]
+    Rotational,
+}
+
+impl std::str::FromStr for Scheme {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "non_incremental" | "nonincremental" | "chorin" => Ok(Scheme::NonIncremental),
+            "incremental" | "standard" => Ok(Scheme::Incremental),
+            "rotational" => Ok(Scheme::Rotational),
+            _ => Err(format!(
+                "unknown scheme '{s}': expected non-incremental, incremental or rotational"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for Scheme {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Scheme::NonIncremental => "non-incremental",
+            Scheme::Incremental => "incremental",
+            Scheme::Rotational => "rotational",
+        })
+    }
+}
+
+/// The divergence of the Poisson source `−Δh φ = D f`, `f = −(ρ/Δt) u*`, and of the reported
+/// `div_before` / `div_after` (the operator-accuracy study, `examples/operator_accuracy.rs`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceKind {
+    /// The sum form `∇̂h·f` (default): exactly adjoint to the difference gradient `∇h`
+    /// (Lemma 4.3), so with [`GradientKind::Difference`] Theorem 4.5 applies.
+    #[default]
+    SumForm,
+    /// `∇̂h·(Bᵀ f)` (`B` the renormalisation matrices of
+    /// [`crate::consistent::Renormalisation`]): the divergence adjoint to the renormalised
+    /// gradient `∇ᶜ = B∇h`, `(∇̂h·(Bᵀψ), φ) = −(ψ, ∇ᶜφ)`; pairs with
+    /// [`GradientKind::Renormalised`].
+    AdjointBt,
+    /// The consistent (renormalised) divergence `∇ᶜ·f_i = Σ_a (B_i ∇h f_a)_a`: exact for linear
+    /// fields and zero for uniform ones, but adjoint to no gradient of the projection.
+    Renormalised,
+}
+
+impl std::str::FromStr for SourceKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "sum_form" | "sumform" | "sum" => Ok(SourceKind::SumForm),
+            "adjoint_bt" | "adjointbt" | "adjoint" => Ok(SourceKind::AdjointBt),
+            "renormalised" | "renormalized" | "consistent" => Ok(SourceKind::Renormalised),
+            _ => Err(format!(
+                "unknown source divergence '{s}': expected sum-form, adjoint-bt or renormalised"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for SourceKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SourceKind::SumForm => "sum-form",
+            SourceKind::AdjointBt => "adjoint-bt",
+            SourceKind::Renormalised => "renormalised",
+        })
+    }
+}
+
+/// Physical and numerical parameters of the projection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProjectionParams<const D: usize> {
+    /// Density `ρ`.
+    pub rho: f64,
+    /// Kinematic viscosity `ν` (0 skips the viscous stage).
+    pub nu: f64,
+    /// Body force per unit mass `g` (all zero skips the stage).
+    pub gravity: [f64; D],
+    /// Pressure-correction scheme.
+    pub scheme: Scheme,
+    /// Implicit weight `θ ∈ [0, 1]` of the viscous term in the predictor:
+    /// `u* − θΔtν Δh u* = uⁿ + Δt((1−θ) ν Δh uⁿ + …)`. 0 = explicit (no solve),
+    /// ½ = Crank–Nicolson (second order), 1 = backward Euler. The rotational correction is
+    /// `−ρ θν ∇̂h·u*` (the part of the implicit viscous term that the projection changes).
+    pub viscous_theta: f64,
+    /// Linear solve parameters.
+    pub solve: SolveParams,
+    /// How the source `f = −(ρ/Δt) u*` is continued into wall ghosts.
+    /// [`VectorKind::Mirror`] (normal component flipped, tangential kept) keeps `∇̂h·` and `∇h`
+    /// exactly adjoint, so Theorem 4.5 applies and its ratio is at most 1; the no-slip rule
+    /// ([`VectorKind::Velocity`]) feeds the wall velocity into the source (the adjointness then
+    /// holds only up to wall terms, and an impulsively started lid gives ratios above 1).
+    pub source_ghosts: VectorKind,
+    /// Reuse connectivity and `c0` while the pair data, roles and volumes are bit-identical
+    /// (they are functions of those alone; default true).
+    pub reuse_diagnostics: bool,
+    /// Floating (pure Neumann) components the problem is expected to have: 1 for a box closed
+    /// by walls, 0 when a Dirichlet band touches every part of the fluid. More are reported as a
+    /// connectivity failure.
+    pub allowed_floating: usize,
+    /// The gradient for `∇pⁿ` in the predictor and `∇φ` in the correction: the difference
+    /// gradient `∇h` (default; exactly adjoint to the source's `∇̂h·`, so Theorem 4.5 applies)
+    /// or the renormalised `∇ᶜ = B∇h` (first order on disordered particles; not adjoint; its
+    /// matrices are cached while the pair data and volumes are unchanged).
+    pub gradient: GradientKind,
+    /// The divergence of the source and of the measured `div_before` / `div_after`: the sum
+    /// form `∇̂h·` (default), the adjoint of `∇ᶜ` `∇̂h·(Bᵀ·)` (with `gradient = renormalised`) or
+    /// the consistent divergence `∇ᶜ·`.
+    pub source: SourceKind,
+}
+
+impl<const D: usize> ProjectionParams<D> {
+    /// `ρ = 1`, viscosity `nu`, no body force, the rotational scheme, default solver, one
+    /// floating component allowed (closed box), the difference gradient and the sum-form source.
+    pub fn new(nu: f64) -> Self {
+        ProjectionParams {
+            rho: 1.0,
+            nu,
+            gravity: [0.0; D],
+            scheme: Scheme::Rotational,
+            viscous_theta: 0.5,
+            source_ghosts: VectorKind::Mirror,
+            reuse_diagnostics: true,
+            solve: SolveParams::default(),
+            allowed_floating: 1,
+            gradient: GradientKind::Difference,
+            source: SourceKind::SumForm,
+        }
+    }
+
+    /// Checks `ρ > 0`, `ν ≥ 0`, `θ ∈ [0, 1]`, finite values, non-negative tolerances, and that
+    /// the adjoint source [`SourceKind::AdjointBt`] comes with the renormalised gradient it is
+    /// the adjoint of. The error names the offending key and its value.
+    pub fn validate(&self) -> Result<(), InputError> {
+        let bad = |name: &'static str, value: f64, reason: &str| {
+            Err(InputError::Parameter {
+                name: name.into(),
+                value,
+                reason: reason.into(),
+            })
+        };
+        if !(self.rho > 0.0 && self.rho.is_finite()) {
+            return bad("rho", self.rho, "the density must be positive and finite");
+        }
+        if !(self.nu >= 0.0 && self.nu.is_finite()) {
+            return bad(
+                "nu",
+                self.nu,
+                "the viscosity must be non-negative and finite",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.viscous_theta) {
+            return bad(
+                "viscous_theta",
+                self.viscous_theta,
+                "the implicit viscous weight must be in [0, 1]",
+            );
+        }
+        if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
+            return bad("gravity", *g, "the body force must be finite");
+        }
+        if !(self.solve.rel_tol >= 0.0) {
+            return bad(
+                "solve.rel_tol",
+                self.solve.rel_tol,
+                "the relative tolerance must be non-negative",
+            );
+        }
+        if !(self.solve.abs_tol >= 0.0) {
+            return bad(
+                "solve.abs_tol",
+                self.solve.abs_tol,
+                "the absolute tolerance must be non-negative",
+            );
+        }
+        if self.source == SourceKind::AdjointBt && self.gradient != GradientKind::Renormalised {
+            return Err(InputError::Config {
+                key: "source".into(),
+                reason: format!(
+                    "the adjoint source {} is the adjoint of the renormalised gradient: it needs \
+                     gradient = renormalised, not {}",
+                    self.source, self.gradient
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Which stages of the projection run, decided once from the parameters (MISSION §4: a step
+/// skips every stage it does not need). [`ProjectionStep::predict`] and
+/// [`ProjectionStep::project`] follow it; [`crate::flow::StagePlan`] lists the same decisions
+/// among the flow's stages.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProjectionPlan {
+    /// `(1−θ) ν Δh uⁿ` in the predictor (`ν > 0`, `θ < 1`).
+    pub viscous_explicit: bool,
+    /// The Helmholtz solve `(I − θΔtν Δh) u* = r` (`ν > 0`, `θ > 0`).
+    pub viscous_implicit: bool,
+    /// The implicit weight actually used: `θ` when `ν > 0`, else 0.
+    pub theta: f64,
+    /// `−∇pⁿ/ρ` in the predictor (the incremental schemes).
+    pub pressure_gradient: bool,
+    /// The body force `g` (some component non-zero).
+    pub body_force: bool,
+    /// The rotational pressure term `−ρθν ∇̂h·u*` (rotational scheme, `θν > 0`).
+    pub rotational: bool,
+    /// The gradient of the predictor and the correction.
+    pub gradient: GradientKind,
+    /// The divergence of the source.
+    pub source: SourceKind,
+}
+
+impl ProjectionPlan {
+    /// The plan for `params`.
+    pub fn new<const D: usize>(params: &ProjectionParams<D>) -> Self {
+        let nu = params.nu;
+        let theta = if nu > 0.0 { params.viscous_theta } else { 0.0 };
+        ProjectionPlan {
+            viscous_explicit: nu > 0.0 && theta < 1.0,
+            viscous_implicit: theta > 0.0,
+            theta,
+            pressure_gradient: params.scheme != Scheme::NonIncremental,
+            body_force: params.gravity.iter().any(|&v| v != 0.0),
+            rotational: params.scheme == Scheme::Rotational && nu * params.viscous_theta > 0.0,
+            gradient: params.gradient,
+            source: params.source,
+        }
+    }
+}
+
+/// Wall-clock seconds per stage of one step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StageTimings {
+    /// Connectivity, `c0` and the other checks.
+    pub diagnostics: f64,
+    /// Predictor (viscous term, pressure gradient, forces).
+    pub predictor: f64,
+    /// Sum-form divergence of the source.
+    pub source: f64,
+    /// Poisson solve (assembly + factorisation/iterations).
+    pub solve: f64,
+    /// Correction and pressure update.
+    pub correction: f64,
+}
+
+/// What one projection step did and measured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct StepReport {
+    /// Time step used.
+    pub dt: f64,
+    /// Connectivity of the fluid graph (checked before the solve).
+    pub connectivity: ConnectivitySummary,
+    /// Semi-regularity constant `c0` over `Ω`.
+    pub c0: f64,
+    /// Theorem 4.5 ratio `‖φ‖_h01(Ω) / (√(d c0) ‖f‖_ℓ2(Ω))`, at most 1 by the theorem.
+    pub stability_ratio: f64,
+    /// The Poisson solve.
+    pub solve: SolveInfo,
+    /// `‖D u*‖_ℓ2(Ω)`, `D` the source's divergence ([`SourceKind`]), measured as the source
+    /// sees `u*`: zero on the Dirichlet band, ghosts continued as for the source.
+    pub div_before: f64,
+    /// `‖D uⁿ⁺¹‖_ℓ2(Ω)`, measured exactly as `div_before` (band zeroed, same ghost rule), so the
+    /// two compare what the projection removed.
+    pub div_after: f64,
+    /// `½ ρ Σ_Ω ω_i |u_i|²` after the step.
+    pub kinetic_energy: f64,
+    /// `max_Ω |u_i|` after the step.
+    pub max_speed: f64,
+    /// Seconds per stage.
+    pub timings: StageTimings,
+}
+
+/// What [`ProjectionStep::predict`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Prediction {
+    /// Seconds spent on the predictor (viscous term, pressure gradient, forces, the solve).
+    pub seconds: f64,
+    /// Seconds spent on the input checks and the connectivity check before the viscous solve.
+    pub diagnostics_seconds: f64,
+    /// The implicit viscous (Helmholtz) solve, when it ran.
+    pub viscous: Option<SolveInfo>,
+}
+
+impl Prediction {
+    /// Adds the predictor's timings to the report of the [`ProjectionStep::project`] that
+    /// followed it (`timings.predictor`, and its checks to `timings.diagnostics`).
+    pub fn add_to(&self, report: &mut StepReport) {
+        report.timings.predictor = self.seconds;
+        report.timings.diagnostics += self.diagnostics_seconds;
+    }
+}
+
+/// What connectivity and c0 were computed from.
+#[derive(Clone, Debug, PartialEq)]
+struct DiagnosticsKey {
+    epoch: u64,
+    generation: u64,
+    roles: u64,
+    vol: Vec<f64>,
+}
+
+fn role_fingerprint(role: &[crate::particles::Role]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    role.len().hash(&mut h);
+    for r in role {
+        match *r {
+            crate::particles::Role::Fluid => 0u64.hash(&mut h),
+            crate::particles::Role::Dirichlet => 1u64.hash(&mut h),
+            crate::particles::Role::Ghost { source, walls } => {
+                (2u64, source, walls).hash(&mut h);
+            }
+        }
+    }
+    h.finish()
+}
+
+fn check_dt(dt: f64) -> Result<(), InputError> {
+    if !(dt > 0.0 && dt.is_finite()) {
+        return Err(InputError::Parameter {
+            name: "dt".into(),
+            value: dt,
+            reason: "the time step must be positive and finite".into(),
+        });
+    }
+    Ok(())
+}
+
+/// Everything [`ProjectionStep::project`] read and wrote in one call: enough to re-run it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProjectionCapture<const D: usize> {
+    /// Positions (all particles, ghosts included).
+    pub x: Vec<[f64; D]>,
+    /// Volumes.
+    pub vol: Vec<f64>,
+    /// Roles.
+    pub role: Vec<crate::particles::Role>,
+    /// Predictor velocity `u*` (ghosts filled).
+    pub u_star: Vec<[f64; D]>,
+    /// Pressure `pⁿ` before the update.
+    pub p_in: Vec<f64>,
+    /// The increment held before the solve (CG's warm start).
+    pub phi_in: Vec<f64>,
+    /// Time step.
+    pub dt: f64,
+    /// Velocity `uⁿ⁺¹` after the correction.
+    pub u_out: Vec<[f64; D]>,
+    /// Pressure `pⁿ⁺¹`.
+    pub p_out: Vec<f64>,
+    /// Increment `φ`.
+    pub phi: Vec<f64>,
+}
+
+/// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
+#[derive(Debug, Default)]
+pub struct ProjectionStep<const D: usize> {
+    /// When true, [`project`](Self::project) stores its inputs and outputs in
+    /// [`captured`](Self::captured) (for recording and re-running).
+    pub capture: bool,
+    /// The last capture.
+    pub captured: Option<ProjectionCapture<D>>,
+    /// Pressure increment `φ` of the last step (warm start for CG).
+    pub phi: Vec<f64>,
+    /// The Poisson solver and its caches.
+    pub solver: PoissonSolver,
+    /// The implicit viscous solver and its caches.
+    pub viscous: HelmholtzSolver,
+    /// `u*` of the last [`step`](Self::step) (a caller of `predict` owns its own).
+    own_u_star: Vec<[f64; D]>,
+    /// `u*` with its ghosts refilled (the projection's copy).
+    u_star: Vec<[f64; D]>,
+    u_new: Vec<[f64; D]>,
+    p_new: Vec<f64>,
+    work_vec: Vec<[f64; D]>,
+    work_vec2: Vec<[f64; D]>,
+    rhs: Vec<f64>,
+    work: Vec<f64>,
+    viscous_info: SolveInfo,
+    diagnostics_cache: Option<(DiagnosticsKey, Components, f64)>,
+    gradient: GradientOperator<D>,
+}
+
+impl<const D: usize> ProjectionStep<D> {
+    /// Empty scratch.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The predictor velocity `u*` of the last [`step`](Self::step) (ghosts filled).
+    pub fn u_star(&self) -> &[[f64; D]] {
+        &self.u_star
+    }
+
+    /// The last implicit viscous solve (default when none ran).
+    pub fn viscous_info(&self) -> SolveInfo {
+        self.viscous_info
+    }
+
+    /// Sets the pressure of every particle and the held increment `φ` to zero: after a one-off
+    /// [`project`](Self::project) of a field that did not come from a predictor, so that the next
+    /// incremental [`predict`](Self::predict) does not re-apply its pressure (of order `ρ/Δt`).
+    pub fn reset_pressure(&mut self, particles: &mut Particles<D>) {
+        particles.p.iter_mut().for_each(|p| *p = 0.0);
+        self.phi.iter_mut().for_each(|p| *p = 0.0);
+    }
+
+    /// Predictor and projection on the same neighbour list: for particles that do not move
+    /// during the step (Eulerian/ALE frames, or a caller that moves them afterwards). A
+    /// Lagrangian loop calls [`predict`](Self::predict), moves the particles with `u*`, updates
+    /// the list and then calls [`project`](Self::project), so that the divergence is removed on
+    /// the configuration the particles will occupy.
+    ///
+    /// On return `particles.u` and `particles.p` hold `uⁿ⁺¹` and `pⁿ⁺¹` (ghosts refilled), and
+    /// [`u_star`](Self::u_star) the predictor velocity. On error, `u` and `p` are unchanged
+    /// (except their ghost values).
+    pub fn step(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+    ) -> Result<StepReport, Error> {
+        let mut u_star = std::mem::take(&mut self.own_u_star);
+        let r = self
+            .predict(particles, nl, boundary, params, dt, accel, &mut u_star)
+            .and_then(|pred| {
+                let mut r = self.project(particles, nl, boundary, params, dt, &u_star)?;
+                pred.add_to(&mut r);
+                Ok(r)
+            });
+        self.own_u_star = u_star;
+        r
+    }
+
+    /// Connectivity (checked against `params.allowed_floating`) and `c0`, reused while the pair
+    /// data, roles and volumes are those of the last call (with `params.reuse_diagnostics`).
+    fn diagnostics(
+        &mut self,
+        particles: &Particles<D>,
+        nl: &NeighborList<D>,
+        params: &ProjectionParams<D>,
+    ) -> Result<(Components, f64), Error> {
+        let key = DiagnosticsKey {
+            epoch: nl.epoch(),
+            generation: nl.generation(),
+            roles: role_fingerprint(&particles.role),
+            vol: particles.vol.clone(),
+        };
+        let cached = match &self.diagnostics_cache {
+            Some((k, comps, c0)) if params.reuse_diagnostics && *k == key => {
+                Some((comps.clone(), *c0))
+            }
+            _ => None,
+        };
+        let (comps, c0) = match cached {
+            Some(v) => v,
+            None => {
+                let comps = connectivity(nl, &particles.role);
+                let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+                (comps, c0)
+            }
+        };
+        self.diagnostics_cache = Some((key, comps.clone(), c0));
+        comps.check(params.allowed_floating)?;
+        Ok((comps, c0))
+    }
+
+    /// Predictor into `u_star` (resized to the particles; ghosts filled by the no-slip rule):
+    ///
+    /// `u* − θΔtν Δh u* = uⁿ + Δt ((1−θ) ν Δh uⁿ + g + accel − G pⁿ/ρ)` on the fluid, `u* = uⁿ`
+    /// elsewhere (the pressure term only in the incremental schemes, `G` the gradient of
+    /// [`ProjectionParams::gradient`]); `accel` is an optional extra acceleration per particle
+    /// (the caller's own forces, or a convective term). The [`ProjectionPlan`] of `params`
+    /// decides which terms run.
+    ///
+    /// Checks its input first ([`checks`]: lengths, finite values naming the particle, positive
+    /// volumes, a neighbour list measured at these positions, ghosts placed and reaching `h`,
+    /// `h` above the spacing) and, before the implicit viscous solve, h-connectivity. Particles
+    /// are not modified except their ghost values.
+    ///
+    /// A Lagrangian loop moves its particles with `u_star` and then calls
+    /// [`project`](Self::project) with it:
+    ///
+    /// ```
+    /// use gpm::boundary::PeriodicBox;
+    /// use gpm::geometry::{lattice, number_density_volumes};
+    /// use gpm::kernel::Weight;
+    /// use gpm::neighbors::{NeighborConfig, NeighborList, Periodicity};
+    /// use gpm::particles::{Particles, Role};
+    /// use gpm::projection::{ProjectionParams, ProjectionStep};
+    ///
+    /// let dx = 1.0 / 16.0;
+    /// let periodic = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
+    /// let boundary = PeriodicBox { periodic };
+    /// let mut particles = Particles::<2>::new();
+    /// for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+    ///     let u = [(6.283 * x[1]).sin(), 0.5 * (6.283 * x[0]).cos()];
+    ///     particles.push(x, u, 0.0, dx * dx, Role::Fluid);
+    /// }
+    /// let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.3)
+    ///     .with_periodicity(periodic);
+    /// let mut nl = NeighborList::build(config, &particles.x)?;
+    /// particles.vol = number_density_volumes(&nl);
+    /// let params = ProjectionParams::<2>::new(0.01);
+    /// let mut step = ProjectionStep::<2>::new();
+    /// let (dt, mut u_star) = (0.01, Vec::new());
+    ///
+    /// let pred = step.predict(&mut particles, &nl, &boundary, &params, dt, None, &mut u_star)?;
+    /// assert_eq!(u_star.len(), particles.len());
+    /// assert!(pred.viscous.is_some()); // Crank–Nicolson by default
+    /// // move with u*, then bring the list and the volumes to the new positions
+    /// for (x, u) in particles.x.iter_mut().zip(&u_star) {
+    ///     x[0] += dt * u[0];
+    ///     x[1] += dt * u[1];
+    ///     periodic.wrap(x);
+    /// }
+    /// nl.update(&particles.x)?;
+    /// particles.vol = number_density_volumes(&nl);
+    /// let mut report = step.project(&mut particles, &nl, &boundary, &params, dt, &u_star)?;
+    /// pred.add_to(&mut report);
+    /// assert!(report.div_after < report.div_before);
+    /// # Ok::<(), gpm::Error>(())
+    /// ```
+    #[allow(clippy::too_many_arguments)]
+    pub fn predict(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+        u_star: &mut Vec<[f64; D]>,
+    ) -> Result<Prediction, Error> {
+        let t = Instant::now();
+        check_dt(dt)?;
+        params.validate()?;
+        checks::check_configuration(particles, nl, boundary, checks::Reads { velocity: true })?;
+        if let Some(extra) = accel {
+            checks::check_field("accel", extra, &particles.role, false)?;
+        }
+        let plan = ProjectionPlan::new(params);
+        if plan.viscous_implicit {
+            // connectivity before any solve, the viscous one included
+            self.diagnostics(particles, nl, params)?;
+        }
+        let diagnostics_seconds = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let n = particles.len();
+        let rho = params.rho;
+        if boundary.has_ghosts() {
+            boundary.fill_vector(&particles.role, &mut particles.u, VectorKind::Velocity);
+            boundary.fill_scalar(&particles.role, &mut particles.p);
+        }
+        let role = &particles.role;
+        let vol = &particles.vol;
+        u_star.clone_from(&particles.u);
+        let acc = &mut self.work_vec;
+        acc.clear();
+        acc.resize(n, [0.0; D]);
+        let theta = plan.theta;
+        if plan.viscous_explicit {
+            crate::operators::laplacian_vec_into(nl, vol, &particles.u, acc);
+            let f = (1.0 - theta) * params.nu;
+            for a in acc.iter_mut() {
+                for v in a.iter_mut() {
+                    *v *= f;
+                }
+            }
+        }
+        if plan.pressure_gradient {
+            let gp = &mut self.work_vec2;
+            gp.resize(n, [0.0; D]);
+            self.gradient.kind = params.gradient;
+            self.gradient.prepare(nl, vol);
+            self.gradient.apply_into(nl, vol, &particles.p, gp);
+            for (a, g) in acc.iter_mut().zip(gp.iter()) {
+                for k in 0..D {
+                    a[k] -= g[k] / rho;
+                }
+            }
+        }
+        let g = params.gravity;
+        let has_g = plan.body_force;
+        for i in 0..n {
+            if !role[i].is_fluid() {
+                continue;
+            }
+            let a = &acc[i];
+            let us = &mut u_star[i];
+            for k in 0..D {
+                let mut ak = a[k];
+                if has_g {
+                    ak += g[k];
+                }
+                if let Some(extra) = accel {
+                    ak += extra[i][k];
+                }
+                us[k] += dt * ak;
+            }
+        }
+        let mut viscous = None;
+        if plan.viscous_implicit {
+            // (I − θΔtν Δh) u* = r, no-slip ghosts as matrix entries
+            let mut r = std::mem::take(&mut self.work_vec2);
+            r.clone_from(u_star);
+            let rule = |j: usize| match particles.role[j] {
+                crate::particles::Role::Ghost { walls, .. } => boundary.velocity_affine(walls),
+                _ => (1.0, [0.0; D]),
+            };
+            let info = self.viscous.solve(
+                nl,
+                &particles.vol,
+                &particles.role,
+                &rule,
+                theta * dt * params.nu,
+                &r,
+                u_star,
+                &params.solve,
+            );
+            self.work_vec2 = r;
+            self.viscous_info = info?;
+            viscous = Some(self.viscous_info);
+        }
+        Ok(Prediction {
+            seconds: t.elapsed().as_secs_f64(),
+            diagnostics_seconds,
+            viscous,
+        })
+    }
+
+    /// Projection of the predictor velocity `u_star` on the configuration described by `nl`
+    /// (which may differ from the predictor's, e.g. after the particles moved with `u*`;
+    /// ghosts may have been regenerated in between: `u_star` must cover every particle before
+    /// the first ghost, and the ghosts' `u*` is refilled from their sources).
+    /// Checks its input ([`checks`]) and connectivity before the solve, solves for `φ`, corrects
+    /// velocity and pressure, and measures the divergence before and after the same way.
+    ///
+    /// On error in the checks, in the solve or in the result (a non-finite velocity),
+    /// `particles.u` and `particles.p` are unchanged.
+    ///
+    /// With an incremental scheme the pressure is updated incrementally: a one-off projection
+    /// of a field that did not come from [`predict`](Self::predict) leaves `p ~ ρ/Δt` that the
+    /// next incremental predictor re-applies — use [`Scheme::NonIncremental`] for it, or
+    /// [`reset_pressure`](Self::reset_pressure) afterwards:
+    ///
+    /// ```
+    /// use gpm::boundary::Walls;
+    /// use gpm::geometry::lattice;
+    /// use gpm::kernel::Weight;
+    /// use gpm::neighbors::NeighborConfig;
+    /// use gpm::particles::{Particles, Role};
+    /// use gpm::projection::{ProjectionParams, ProjectionStep, Scheme};
+    /// use gpm::setup::{prepare, VolumeRule};
+    ///
+    /// let dx = 1.0 / 20.0;
+    /// let walls = Walls::closed_box([0.0, 0.0], [1.0, 1.0]);
+    /// let mut particles = Particles::<2>::new();
+    /// for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+    ///     particles.push(x, [x[0], 0.0], 0.0, dx * dx, Role::Fluid); // div u = 1
+    /// }
+    /// let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0);
+    /// let nl = prepare(&mut particles, &walls, config, VolumeRule::NumberDensity)?;
+    /// let mut params = ProjectionParams::<2>::new(0.0);
+    /// params.scheme = Scheme::NonIncremental; // a one-off projection: p = φ
+    /// let u_star = particles.u.clone();
+    /// let report = ProjectionStep::new().project(&mut particles, &nl, &walls, &params, 0.1, &u_star)?;
+    /// assert!(report.div_after < report.div_before);
+    /// assert!(report.stability_ratio <= 1.0);
+    /// # Ok::<(), gpm::Error>(())
+    /// ```
+    pub fn project(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        u_star: &[[f64; D]],
+    ) -> Result<StepReport, Error> {
+        let t = Instant::now();
+        check_dt(dt)?;
+        params.validate()?;
+        checks::check_configuration(particles, nl, boundary, checks::Reads { velocity: false })?;
+        checks::check_field("u_star", u_star, &particles.role, true)?;
+        let n = particles.len();
+        let mut report = StepReport {
+            dt,
+            ..Default::default()
+        };
+        let plan = ProjectionPlan::new(params);
+        let rho = params.rho;
+        let ghosts = boundary.has_ghosts();
+
+        // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
+        //    roles or volumes changed: they are functions of those alone)
+        let (comps, c0) = self.diagnostics(particles, nl, params)?;
+        report.connectivity = comps.summary();
+        report.c0 = c0;
+        report.timings.diagnostics = t.elapsed().as_secs_f64();
+        let role = &particles.role;
+        let vol = &particles.vol;
+        // 2. u* on every particle, ghosts refilled from their sources
+        self.u_star.clear();
+        self.u_star
+            .extend_from_slice(&u_star[..u_star.len().min(n)]);
+        self.u_star.resize(n, [0.0; D]);
+        if ghosts {
+            boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
+        }
+        let mut capture = self.capture.then(|| ProjectionCapture {
+            x: particles.x.clone(),
+            vol: vol.clone(),
+            role: role.clone(),
+            u_star: self.u_star.clone(),
+            p_in: particles.p.clone(),
+            phi_in: {
+                let mut v = self.phi.clone();
+                v.resize(n, 0.0);
+                v
+            },
+            dt,
+            ..Default::default()
+        });
+
+        // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band)
+        let t = Instant::now();
+        let f = &mut self.work_vec2;
+        stages::source_field(
+            role,
+            boundary,
+            params.source_ghosts,
+            -rho / dt,
+            &self.u_star,
+            f,
+        );
+        stages::divergence_into(
+            nl,
+            vol,
+            role,
+            boundary,
+            params.source_ghosts,
+            plan.source,
+            &mut self.gradient.renorm,
+            f,
+            &mut self.work_vec,
+            &mut self.rhs,
+        );
+        report.div_before = norm_l2(vol, &self.rhs, role, Region::Omega) / rho * dt;
+        let f_l2 = norm_l2_vec(vol, f, role, Region::Omega);
+        report.timings.source = t.elapsed().as_secs_f64();
+
+        // 4. Poisson solve for the increment
+        let t = Instant::now();
+        self.phi.resize(n, 0.0);
+        report.solve = self.solver.solve(
+            nl,
+            vol,
+            role,
+            &comps,
+            &self.rhs,
+            &mut self.phi,
+            &params.solve,
+        )?;
+        report.timings.solve = t.elapsed().as_secs_f64();
+
+        // 5. correction and pressure update, into scratch (u and p untouched until it is checked)
+        let t = Instant::now();
+        let t_diag = Instant::now();
+        let phi_h01 = norm_h01(nl, vol, &self.phi, role, Region::Omega);
+        report.stability_ratio = stability_ratio(phi_h01, report.c0, f_l2, D);
+        let diag_extra = t_diag.elapsed().as_secs_f64();
+        let gphi = &mut self.work_vec;
+        gphi.resize(n, [0.0; D]);
+        self.gradient.kind = params.gradient;
+        self.gradient.prepare(nl, vol);
+        self.gradient.apply_into(nl, vol, &self.phi, gphi);
+        if plan.rotational {
+            self.work.resize(n, 0.0);
+            div_sum_into(nl, vol, &self.u_star, &mut self.work);
+        }
+        self.u_new.clone_from(&particles.u);
+        self.p_new.clone_from(&particles.p);
+        stages::correct(
+            role,
+            params,
+            dt,
+            &self.u_star,
+            &self.phi,
+            gphi,
+            &self.work,
+            &mut self.u_new,
+            &mut self.p_new,
+        );
+        if ghosts {
+            boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
+            boundary.fill_scalar(role, &mut self.p_new);
+        }
+        report.timings.correction = t.elapsed().as_secs_f64() - diag_extra;
+
+        // 6. measurement, the same way as div_before
+        let t = Instant::now();
+        report.div_after = stages::measure_divergence(
+            nl,
+            vol,
+            role,
+            boundary,
+            params.source_ghosts,
+            plan.source,
+            &mut self.gradient.renorm,
+            &self.u_new,
+            &mut self.work_vec,
+            &mut self.work_vec2,
+            &mut self.rhs,
+        );
+        let (ke, vmax) = stages::energy(vol, role, rho, &self.u_new)?;
+        report.kinetic_energy = ke;
+        report.max_speed = vmax;
+        std::mem::swap(&mut particles.u, &mut self.u_new);
+        std::mem::swap(&mut particles.p, &mut self.p_new);
+        if let Some(c) = capture.as_mut() {
+            c.u_out = particles.u.clone();
+            c.p_out = particles.p.clone();
+            c.phi = self.phi.clone();
+        }
+        if capture.is_some() {
+            self.captured = capture;
+        }
+        report.timings.diagnostics += diag_extra + t.elapsed().as_secs_f64();
+        Ok(report)
+    }
+}

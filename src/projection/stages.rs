@@ -1,0 +1,188 @@
+//! The stages of the projection as public functions with explicit inputs and outputs.
+//!
+//! [`super::ProjectionStep::project`] runs, in order:
+//!
+//! | stage | function | computes |
+//! | --- | --- | --- |
+//! | ghosts of `u*` | [`crate::boundary::Boundary::fill_vector`] | `u*` on the ghosts from their sources (no-slip rule) |
+//! | source field | [`source_field`] | `f = −(ρ/Δt) u*`, zero on the Dirichlet band, ghosts continued by `source_ghosts` |
+//! | source | [`divergence_into`] | `b = D f` with `D` the chosen [`SourceKind`] |
+//! | Poisson solve | [`crate::poisson::PoissonSolver::solve`] | `−Δh φ = b` |
+//! | correction | [`correct`] | `uⁿ⁺¹ = u* − (Δt/ρ) G φ`, `pⁿ⁺¹` by the scheme |
+//! | measurement | [`measure_divergence`], [`energy`], [`crate::diagnostics::stability_ratio`] | `div`, kinetic energy, max speed, the Theorem 4.5 ratio |
+//!
+//! A caller can run them one by one (e.g. to insert its own step between the solve and the
+//! correction); the functions neither allocate more than their outputs nor check their input
+//! (see [`super::checks`]).
+
+use super::{ProjectionParams, Scheme, SourceKind};
+use crate::boundary::{Boundary, VectorKind};
+use crate::consistent::{div_renormalised_into, Renormalisation};
+use crate::diagnostics::{norm_l2, Region};
+use crate::error::SolveError;
+use crate::math::norm2;
+use crate::neighbors::NeighborList;
+use crate::operators::div_sum_into;
+use crate::particles::Role;
+
+/// The source field `f_i = scale · v_i` (the projection uses `scale = −ρ/Δt`, `v = u*`) on the
+/// fluid and the ghosts, `f_i = 0` on the Dirichlet band; when the boundary has ghosts and
+/// `ghost_rule` is [`VectorKind::Mirror`], the ghosts are refilled by the mirror rule (else they
+/// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
+pub fn source_field<const D: usize>(
+    role: &[Role],
+    boundary: &dyn Boundary<D>,
+    ghost_rule: VectorKind,
+    scale: f64,
+    v: &[[f64; D]],
+    f: &mut Vec<[f64; D]>,
+) {
+    let n = role.len();
+    f.resize(n, [0.0; D]);
+    for i in 0..n {
+        f[i] = if matches!(role[i], Role::Dirichlet) {
+            [0.0; D]
+        } else {
+            v[i].map(|x| scale * x)
+        };
+    }
+    if boundary.has_ghosts() && ghost_rule == VectorKind::Mirror {
+        boundary.fill_vector(role, f, VectorKind::Mirror);
+    }
+}
+
+/// The divergence `out = D v` of the source (rows `0..nl.len()`), `D` by `kind`:
+///
+/// * [`SourceKind::SumForm`]: `∇̂h·v_i = d Σ_j ω_j (v_j + v_i)·x_ji w_h/r²`;
+/// * [`SourceKind::AdjointBt`]: `∇̂h·(Bᵀv)`, with `Bᵀv` continued into the ghosts by the mirror
+///   rule when `ghost_rule` is [`VectorKind::Mirror`] (as `v` was);
+/// * [`SourceKind::Renormalised`]: `∇ᶜ·v_i = Σ_a (B_i ∇h v_a)_a`.
+///
+/// `renorm` holds the matrices `B` (brought up to date here when the kind needs them);
+/// `work` is scratch.
+#[allow(clippy::too_many_arguments)]
+pub fn divergence_into<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    role: &[Role],
+    boundary: &dyn Boundary<D>,
+    ghost_rule: VectorKind,
+    kind: SourceKind,
+    renorm: &mut Renormalisation<D>,
+    v: &[[f64; D]],
+    work: &mut Vec<[f64; D]>,
+    out: &mut Vec<f64>,
+) {
+    let n = nl.len();
+    out.resize(n, 0.0);
+    match kind {
+        SourceKind::SumForm => div_sum_into(nl, vol, v, out),
+        SourceKind::AdjointBt => {
+            renorm.update(nl, vol, n);
+            work.resize(n, [0.0; D]);
+            renorm.apply_transpose_into(v, work);
+            if boundary.has_ghosts() && ghost_rule == VectorKind::Mirror {
+                boundary.fill_vector(role, work, VectorKind::Mirror);
+            }
+            div_sum_into(nl, vol, work, out);
+        }
+        SourceKind::Renormalised => {
+            renorm.update(nl, vol, n);
+            div_renormalised_into(nl, vol, renorm, v, out);
+        }
+    }
+}
+
+/// The correction: on every fluid particle `u_i = u*_i − (Δt/ρ) gφ_i` and
+///
+/// * `p_i = φ_i` ([`Scheme::NonIncremental`]),
+/// * `p_i = p_i + φ_i` ([`Scheme::Incremental`]),
+/// * `p_i = p_i + φ_i − ρθν (∇̂h·u*)_i` ([`Scheme::Rotational`]; `rot_div` holds `∇̂h·u*` and is
+///   read only when `θν > 0`).
+///
+/// `gphi` is the gradient of `φ` (the projection's [`crate::consistent::GradientOperator`]);
+/// `u` and `p` hold `uⁿ`, `pⁿ` on entry (non-fluid entries are left as they are: the caller
+/// refills the ghosts afterwards).
+#[allow(clippy::too_many_arguments)]
+pub fn correct<const D: usize>(
+    role: &[Role],
+    params: &ProjectionParams<D>,
+    dt: f64,
+    u_star: &[[f64; D]],
+    phi: &[f64],
+    gphi: &[[f64; D]],
+    rot_div: &[f64],
+    u: &mut [[f64; D]],
+    p: &mut [f64],
+) {
+    let rho = params.rho;
+    let rot_nu = params.nu * params.viscous_theta;
+    let s = dt / rho;
+    for i in 0..role.len() {
+        if !role[i].is_fluid() {
+            continue;
+        }
+        let us = u_star[i];
+        let gp = gphi[i];
+        u[i] = std::array::from_fn(|k| us[k] - s * gp[k]);
+        p[i] = match params.scheme {
+            Scheme::NonIncremental => phi[i],
+            Scheme::Incremental => p[i] + phi[i],
+            Scheme::Rotational => {
+                let rot = if rot_nu > 0.0 {
+                    rho * rot_nu * rot_div[i]
+                } else {
+                    0.0
+                };
+                p[i] + phi[i] - rot
+            }
+        };
+    }
+}
+
+/// `‖D v‖_ℓ2(Ω)` measured as the source sees a velocity: `v` zeroed on the Dirichlet band, its
+/// ghosts continued by `ghost_rule` ([`source_field`] with scale 1), then the divergence of
+/// `kind` ([`divergence_into`]). `work`, `work2` and `div` are scratch (`div` holds `D v` on
+/// return).
+#[allow(clippy::too_many_arguments)]
+pub fn measure_divergence<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    role: &[Role],
+    boundary: &dyn Boundary<D>,
+    ghost_rule: VectorKind,
+    kind: SourceKind,
+    renorm: &mut Renormalisation<D>,
+    v: &[[f64; D]],
+    work: &mut Vec<[f64; D]>,
+    work2: &mut Vec<[f64; D]>,
+    div: &mut Vec<f64>,
+) -> f64 {
+    source_field(role, boundary, ghost_rule, 1.0, v, work);
+    divergence_into(
+        nl, vol, role, boundary, ghost_rule, kind, renorm, work, work2, div,
+    );
+    norm_l2(vol, div, role, Region::Omega)
+}
+
+/// Kinetic energy `½ ρ Σ_Ω ω_i |u_i|²` and the maximum speed `max_Ω |u_i|`; a non-finite
+/// velocity is reported at the first fluid particle that has one.
+pub fn energy<const D: usize>(
+    vol: &[f64],
+    role: &[Role],
+    rho: f64,
+    u: &[[f64; D]],
+) -> Result<(f64, f64), SolveError> {
+    let (mut ke, mut vmax) = (0.0, 0.0f64);
+    for i in 0..role.len() {
+        if role[i].is_fluid() {
+            let u2 = norm2(&u[i]);
+            ke += 0.5 * rho * vol[i] * u2;
+            vmax = vmax.max(u2);
+            if !u2.is_finite() {
+                return Err(SolveError::NonFinite { particle: i });
+            }
+        }
+    }
+    Ok((ke, vmax.sqrt()))
+}
