@@ -1683,7 +1683,7 @@ mod flows {
         let mut st = Stepper::new(v.1, v.2);
         let re_key = cfg.re.round() as u32;
         let (ys, xs) = sample_positions(re_key);
-        let s = cfg.steady;
+        let s = cfg.scene.steady;
         let mut samples: Vec<(f64, Vec<f64>, Vec<f64>)> = Vec::new();
         let mut next = s.interval;
         let mut steady_time = None;
@@ -1766,7 +1766,7 @@ mod flows {
             if r.is_err() {
                 break;
             }
-            let e = taylor_green::errors(&sim, cfg.re, cfg.amplitude);
+            let e = taylor_green::errors(&sim, cfg.re, cfg.scene.amplitude);
             out.push((sim.time, e.l1_velocity_error, e.l1_pressure_error));
         }
         Ok(out)
@@ -1778,17 +1778,15 @@ mod flows {
             "\n== Flows: the projection variants in the Lagrangian frame (and the Eulerian default) =="
         );
         // the example's loop must reproduce Simulation::advance exactly
-        let tg_small = TaylorGreenConfig {
-            n: 24,
-            motion: Motion::Lagrangian,
-            ..Default::default()
-        };
+        let tg_small = TaylorGreenConfig::default().with(|c| {
+            c.n = 24;
+            c.motion = Motion::Lagrangian;
+        });
         let d_tg = identity_check(|| Ok(taylor_green::build(&tg_small)?), 40)?;
-        let cav_small = CavityConfig {
-            n: 24,
-            motion: Motion::Lagrangian,
-            ..Default::default()
-        };
+        let cav_small = CavityConfig::default().with(|c| {
+            c.n = 24;
+            c.motion = Motion::Lagrangian;
+        });
         let d_cav = identity_check(|| Ok(build(&cav_small)?), 10)?;
         println!(
             "loop check (difference gradient) vs Simulation::advance: Lagrangian Taylor–Green n = 24, \
@@ -1821,11 +1819,10 @@ mod flows {
         // Taylor–Green, step by step: the Lagrangian frame against the Eulerian one
         let ns = if args.quick { 24 } else { 48 };
         let nsteps = 12;
-        let tg = |motion| TaylorGreenConfig {
-            n: ns,
-            motion,
-            ..Default::default()
-        };
+        let tg = |motion| TaylorGreenConfig::default().with(|c| {
+            c.n = ns;
+            c.motion = motion;
+        });
         let mut steps_csv = String::from("frame,variant,n,cfl,step,t,u_l1,p_l1\n");
         let mut rows: Vec<(String, Steps)> = Vec::new();
         rows.push((
@@ -1924,11 +1921,10 @@ mod flows {
         }
         write(&out.join("tg_steps.csv"), &steps_csv)?;
         // Lagrangian cavity against Ghia
-        let mut base = CavityConfig {
-            motion: Motion::Lagrangian,
-            volumes: VolumeRule::NumberDensity,
-            ..Default::default()
-        };
+        let mut base = CavityConfig::default().with(|c| {
+            c.motion = Motion::Lagrangian;
+            c.volumes = VolumeRule::NumberDensity;
+        });
         base.n = args.cavity_n.unwrap_or(if args.quick { 24 } else { 50 });
         base.t_end = args
             .cavity_t_end
@@ -2123,13 +2119,12 @@ mod weights {
         );
         for &w in &cw {
             for &r in &cr {
-                let cfg = CavityConfig {
-                    n: cn,
-                    t_end: ct,
-                    weight: w,
-                    h_over_dx: r,
-                    ..Default::default()
-                };
+                let cfg = CavityConfig::default().with(|c| {
+                    c.n = cn;
+                    c.t_end = ct;
+                    c.weight = w;
+                    c.h_over_dx = r;
+                });
                 let res = cavity::run(&cfg, |_, _| Ok(()));
                 match res {
                     Ok(res) => {
