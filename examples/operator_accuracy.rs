@@ -1819,10 +1819,12 @@ mod flows {
         // Taylor–Green, step by step: the Lagrangian frame against the Eulerian one
         let ns = if args.quick { 24 } else { 48 };
         let nsteps = 12;
-        let tg = |motion| TaylorGreenConfig::default().with(|c| {
-            c.n = ns;
-            c.motion = motion;
-        });
+        let tg = |motion| {
+            TaylorGreenConfig::default().with(|c| {
+                c.n = ns;
+                c.motion = motion;
+            })
+        };
         let mut steps_csv = String::from("frame,variant,n,cfl,step,t,u_l1,p_l1\n");
         let mut rows: Vec<(String, Steps)> = Vec::new();
         rows.push((

@@ -648,7 +648,9 @@ fn invalid_configurations_name_the_key() {
     // the scenes' build refuses them too (nothing is allocated for n = 0)
     let e = input_err(cavity::build(&CavityConfig::default().with(|c| c.n = 0)));
     assert_names(&e.to_string(), &["parameter 'n' = 0"]);
-    let e = input_err(taylor_green::build(&TaylorGreenConfig::default().with(|c| c.re = f64::NAN)));
+    let e = input_err(taylor_green::build(
+        &TaylorGreenConfig::default().with(|c| c.re = f64::NAN),
+    ));
     assert_names(&e.to_string(), &["parameter 're' = NaN"]);
     // a recorded /config message's config member reads back through the same path
     let v = serde_json::json!({ "re": 400.0, "n": 16, "limits": { "guard": { "speed_over_ref": 3.0 } } });
@@ -783,8 +785,7 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         other => panic!("{other:?}"),
     }
     // the guards are off by default: the same runs go on
-    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 12))
-    .unwrap();
+    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 12)).unwrap();
     for _ in 0..20 {
         sim.advance().unwrap();
     }
@@ -833,8 +834,7 @@ fn dt_bound_is_the_smallest_limit_of_time_step() {
 // MCAP files: unreadable, foreign, truncated
 
 fn record_run(path: &Path, steps: usize) {
-    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 10))
-    .unwrap();
+    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 10)).unwrap();
     let mut rec =
         Recorder::create(path, RecordLevel::Diagnostics, 10, &serde_json::json!({})).unwrap();
     for _ in 0..steps {

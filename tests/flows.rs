@@ -56,26 +56,34 @@ fn cavity_re100_short_run_against_ghia() {
         c.t_end = 30.0;
     });
     let mut steps = 0;
-    let run = run_scene(&cfg, |_| {}, |rep, _| {
-        let p = &rep.projection;
-        assert!(
-            p.stability_ratio <= 1.0,
-            "step {}: ratio {}",
-            rep.step,
-            p.stability_ratio
-        );
-        assert!(p.kinetic_energy.is_finite() && p.max_speed.is_finite());
-        assert_eq!(
-            p.connectivity.floating, 1,
-            "one floating (all-Neumann) component"
-        );
-        assert_eq!(p.connectivity.isolated, 0);
-        assert!(p.div_after.is_finite());
-        steps += 1;
-        Ok(ControlFlow::Continue(()))
-    })
+    let run = run_scene(
+        &cfg,
+        |_| {},
+        |rep, _| {
+            let p = &rep.projection;
+            assert!(
+                p.stability_ratio <= 1.0,
+                "step {}: ratio {}",
+                rep.step,
+                p.stability_ratio
+            );
+            assert!(p.kinetic_energy.is_finite() && p.max_speed.is_finite());
+            assert_eq!(
+                p.connectivity.floating, 1,
+                "one floating (all-Neumann) component"
+            );
+            assert_eq!(p.connectivity.isolated, 0);
+            assert!(p.div_after.is_finite());
+            steps += 1;
+            Ok(ControlFlow::Continue(()))
+        },
+    )
     .unwrap();
-    assert_eq!(run.end, RunEnd::Scene, "the cavity stops itself once steady");
+    assert_eq!(
+        run.end,
+        RunEnd::Scene,
+        "the cavity stops itself once steady"
+    );
     let res = &run.result;
     assert!(res.steady, "not steady by t = {}", res.t_end);
     assert_eq!(steps as u64, res.steps);
@@ -84,7 +92,10 @@ fn cavity_re100_short_run_against_ghia() {
     // independent check: written profiles against the data files
     let dir = std::env::temp_dir().join(format!("gpm_cavity_test_{}", std::process::id()));
     let written = run.write_tables(&dir, &cfg).unwrap();
-    let names: Vec<_> = written.iter().filter_map(|p| p.file_name()?.to_str()).collect();
+    let names: Vec<_> = written
+        .iter()
+        .filter_map(|p| p.file_name()?.to_str())
+        .collect();
     assert_eq!(names, ["profile_u.csv", "profile_v.csv", "summary.json"]);
     let pu = read_csv(&dir.join("profile_u.csv"));
     let pv = read_csv(&dir.join("profile_v.csv"));
@@ -338,8 +349,7 @@ fn stage_plans_follow_the_scene() {
     use gpm::boundary::{Boundary, PeriodicBox, VectorKind};
     use gpm::flow::Stage::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
-    let tg = taylor_green::build(&TaylorGreenConfig::default().with(|c| c.n = 16))
-    .unwrap();
+    let tg = taylor_green::build(&TaylorGreenConfig::default().with(|c| c.n = 16)).unwrap();
     let plan = tg.plan();
     for s in [
         Periodic,
@@ -362,8 +372,7 @@ fn stage_plans_follow_the_scene() {
     ] {
         assert!(!plan.has(s), "Taylor–Green has {s:?}: {plan:?}");
     }
-    let cav = cavity::build(&CavityConfig::default().with(|c| c.n = 12))
-    .unwrap();
+    let cav = cavity::build(&CavityConfig::default().with(|c| c.n = 12)).unwrap();
     assert!(cav.plan().has(Ghosts) && !cav.plan().has(Periodic) && !cav.plan().has(BodyForce));
 
     /// A periodic box that counts every call a ghost stage would make.
@@ -459,7 +468,8 @@ fn scene_configuration_round_trips_and_keeps_the_flat_layout() {
     assert_eq!(back, cfg);
     // hand-written flat JSON (the layout of configurations recorded before the scene trait):
     // shared and scene keys side by side; missing keys take the scene's defaults
-    let flat = r#"{"re": 400, "n": 12, "lid": -2, "steady": {"tol": 1e-4}, "limits": {"cfl": 0.15}}"#;
+    let flat =
+        r#"{"re": 400, "n": 12, "lid": -2, "steady": {"tol": 1e-4}, "limits": {"cfl": 0.15}}"#;
     let read: CavityConfig = config_from_json(flat).unwrap();
     assert_eq!(read, cfg);
     assert_eq!(read.t_end, 40.0, "the cavity's own default end time");
@@ -489,7 +499,10 @@ fn scenes_are_found_by_name() {
             (S::NAME, D)
         }
     }
-    assert_eq!(gpm::scene::visit_scene("cavity", Name).unwrap(), ("cavity", 2));
+    assert_eq!(
+        gpm::scene::visit_scene("cavity", Name).unwrap(),
+        ("cavity", 2)
+    );
     assert_eq!(
         gpm::scene::visit_scene("Taylor-Green", Name).unwrap(),
         ("taylor_green", 2)
@@ -508,13 +521,17 @@ fn scenes_are_found_by_name() {
 #[test]
 fn an_observer_stops_a_run_with_a_value() {
     let cfg = TaylorGreenConfig::default().with(|c| c.n = 12);
-    let run = run_scene(&cfg, |_| {}, |rep, _| {
-        Ok(if rep.step == 3 {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        })
-    })
+    let run = run_scene(
+        &cfg,
+        |_| {},
+        |rep, _| {
+            Ok(if rep.step == 3 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        },
+    )
     .unwrap();
     assert_eq!(run.end, RunEnd::Observer { step: 3 });
     assert_eq!(run.interrupted(), Some(3));
@@ -525,5 +542,9 @@ fn an_observer_stops_a_run_with_a_value() {
     let cfg = cfg.with(|c| c.t_end = 0.05);
     let run = run_scene(&cfg, |_| {}, |_, _| Ok(ControlFlow::Continue(()))).unwrap();
     assert_eq!(run.end, RunEnd::EndTime);
-    assert!((run.result.t_end - 0.05).abs() < 1e-15, "{}", run.result.t_end);
+    assert!(
+        (run.result.t_end - 0.05).abs() < 1e-15,
+        "{}",
+        run.result.t_end
+    );
 }

@@ -294,7 +294,8 @@ impl SceneVisitor for RunScene {
                     }
                     return Ok(ExitCode::from(130));
                 }
-                let out = serde_json::json!({ "scene": name, "result": run.result, "record": record });
+                let out =
+                    serde_json::json!({ "scene": name, "result": run.result, "record": record });
                 println!("{}", serde_json::to_string_pretty(&out)?);
                 Ok(if record.is_some() || a.record == RecordLevel::None {
                     ExitCode::SUCCESS

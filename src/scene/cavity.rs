@@ -8,9 +8,9 @@
 //! `U² / L`). The reported profiles are the mean of the samples taken over the last
 //! `steady.average_window` time units (Lagrangian particles sample a steady field with noise).
 
+use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
-use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::flow::{FlowReport, Simulation};
 use crate::geometry::lattice;
 use crate::particles::{Particles, Role};
@@ -294,10 +294,14 @@ pub fn run(
     cfg: &CavityConfig,
     mut observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
 ) -> Result<CavityResult, Error> {
-    let run = run_scene(cfg, |_| {}, |rep, sim| {
-        observer(rep, sim)?;
-        Ok(ControlFlow::Continue(()))
-    })?;
+    let run = run_scene(
+        cfg,
+        |_| {},
+        |rep, sim| {
+            observer(rep, sim)?;
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
     Ok(run.result)
 }
 

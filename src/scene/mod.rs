@@ -29,8 +29,8 @@ use crate::kernel::Weight;
 use crate::neighbors::NeighborConfig;
 use crate::poisson::SolveParams;
 use crate::projection::{ProjectionParams, Scheme};
-use crate::record::{RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions};
 use crate::record::schema::ToBoundarySpec;
+use crate::record::{RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions};
 use serde::de::{DeserializeOwned, DeserializeSeed, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
@@ -253,9 +253,7 @@ config_fields!(FlowConfig {
 
 /// A scene's own configuration keys (beside the shared [`FlowConfig`]); independent of the
 /// dimension.
-pub trait SceneParams:
-    ConfigFields + Clone + fmt::Debug + PartialEq + Default + Serialize
-{
+pub trait SceneParams: ConfigFields + Clone + fmt::Debug + PartialEq + Default + Serialize {
     /// The scene's name in `gpm run <name>` and in a recording's `/config` (`snake_case`;
     /// the command line also accepts `-` for `_`).
     const NAME: &'static str;
@@ -340,7 +338,11 @@ struct ConfigVisitor<S>(PhantomData<S>);
 impl<'de, S: SceneParams> Visitor<'de> for ConfigVisitor<S> {
     type Value = SceneConfig<S>;
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        write!(f, "a {} configuration (a JSON object of named keys)", S::NAME)
+        write!(
+            f,
+            "a {} configuration (a JSON object of named keys)",
+            S::NAME
+        )
     }
     fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
         let mut cfg = SceneConfig::<S>::default();
@@ -622,7 +624,8 @@ impl<const D: usize, S: Scene<D>> SceneRun<D, S> {
             written.push(path);
         }
         let path = dir.join("summary.json");
-        let text = serde_json::to_string_pretty(&self.summary(cfg)).map_err(std::io::Error::other)?;
+        let text =
+            serde_json::to_string_pretty(&self.summary(cfg)).map_err(std::io::Error::other)?;
         std::fs::write(&path, text)?;
         written.push(path);
         Ok(written)

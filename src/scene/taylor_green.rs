@@ -4,8 +4,8 @@
 //! `u = −U e^{−8π²t/Re} cos 2πx sin 2πy`, `v = U e^{−8π²t/Re} sin 2πx cos 2πy`,
 //! `p = −ρU² e^{−16π²t/Re} (cos 4πx + cos 4πy)/4`.
 
-use crate::boundary::PeriodicBox;
 use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams};
+use crate::boundary::PeriodicBox;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
 use crate::geometry::lattice;
@@ -156,10 +156,14 @@ pub fn run(
     cfg: &TaylorGreenConfig,
     mut observer: impl FnMut(&FlowReport, &Simulation<2, PeriodicBox<2>>) -> Result<(), Error>,
 ) -> Result<TaylorGreenResult, Error> {
-    let run = run_scene(cfg, |_| {}, |rep, sim| {
-        observer(rep, sim)?;
-        Ok(ControlFlow::Continue(()))
-    })?;
+    let run = run_scene(
+        cfg,
+        |_| {},
+        |rep, sim| {
+            observer(rep, sim)?;
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
     Ok(run.result)
 }
 
