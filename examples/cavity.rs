@@ -96,18 +96,19 @@ struct Args {
 }
 
 fn config(a: &Args) -> CavityConfig {
-    let mut cfg = CavityConfig::default();
-    cfg.re = a.re;
-    cfg.n = a.n;
-    cfg.scheme = a.scheme;
-    cfg.gradient = a.gradient;
-    cfg.weight = a.weight;
-    cfg.h_over_dx = a.h_ratio;
-    cfg.motion = a.motion;
-    cfg.integrator = a.integrator;
-    cfg.viscous_theta = a.theta;
-    cfg.scene.source_ghosts = a.source_ghosts;
-    cfg.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+    let mut cfg = CavityConfig::default().with(|c| {
+        c.re = a.re;
+        c.n = a.n;
+        c.scheme = a.scheme;
+        c.gradient = a.gradient;
+        c.weight = a.weight;
+        c.h_over_dx = a.h_ratio;
+        c.motion = a.motion;
+        c.integrator = a.integrator;
+        c.viscous_theta = a.theta;
+        c.scene.source_ghosts = a.source_ghosts;
+        c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+    });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {
             coefficient: s,

@@ -322,23 +322,25 @@ fn run_case(c: &Case, a: &Args, dir: &Path) -> Result<Outcome> {
     let mut ke0 = 0.0;
     let (result, record) = match c.scene {
         SceneName::Cavity => {
-            let mut cfg = cavity::CavityConfig::default();
-            cfg.re = c.re;
-            cfg.n = c.n;
-            cfg.t_end = c.t_end;
-            cfg.motion = c.motion;
-            cfg.scene.steady.stop_when_steady = false;
+            let mut cfg = cavity::CavityConfig::default().with(|k| {
+                k.re = c.re;
+                k.n = c.n;
+                k.t_end = c.t_end;
+                k.motion = c.motion;
+                k.scene.steady.stop_when_steady = false;
+            });
             cfg.limits.dt_fixed = fixed(cfg.limits.cfl, cfg.h_over_dx, &mut mon);
             cfg.limits.guard = guard(c.guard, c.scene, a);
             let amp = cfg.scene.lid;
             run_stressed(&cfg, c, amp, &mcap, &mut mon, &mut ke0)?
         }
         SceneName::TaylorGreen => {
-            let mut cfg = taylor_green::TaylorGreenConfig::default();
-            cfg.re = c.re;
-            cfg.n = c.n;
-            cfg.t_end = c.t_end;
-            cfg.motion = c.motion;
+            let mut cfg = taylor_green::TaylorGreenConfig::default().with(|k| {
+                k.re = c.re;
+                k.n = c.n;
+                k.t_end = c.t_end;
+                k.motion = c.motion;
+            });
             cfg.limits.dt_fixed = fixed(cfg.limits.cfl, cfg.h_over_dx, &mut mon);
             cfg.limits.guard = guard(c.guard, c.scene, a);
             let amp = cfg.scene.amplitude;

@@ -91,17 +91,18 @@ struct Args {
 }
 
 fn config(a: &Args) -> TaylorGreenConfig {
-    let mut cfg = TaylorGreenConfig::default();
-    cfg.n = a.n;
-    cfg.t_end = a.t_end;
-    cfg.re = a.re;
-    cfg.scheme = a.scheme;
-    cfg.gradient = a.gradient;
-    cfg.weight = a.weight;
-    cfg.h_over_dx = a.h_ratio;
-    cfg.motion = a.motion;
-    cfg.integrator = a.integrator;
-    cfg.viscous_theta = a.theta;
+    let mut cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = a.n;
+        c.t_end = a.t_end;
+        c.re = a.re;
+        c.scheme = a.scheme;
+        c.gradient = a.gradient;
+        c.weight = a.weight;
+        c.h_over_dx = a.h_ratio;
+        c.motion = a.motion;
+        c.integrator = a.integrator;
+        c.viscous_theta = a.theta;
+    });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {
             coefficient: s,

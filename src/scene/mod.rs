@@ -10,7 +10,7 @@
 //! observer returns [`ControlFlow::Break`], then summarise. [`run_recorded`] adds an MCAP
 //! recording (finished whatever happened). `gpm run <scene>` and the examples dispatch by name
 //! through [`visit_scene`]; **adding a scene** is one new file implementing the two traits plus
-//! one line in the [`registry!`](self) invocation at the end of this module.
+//! one line in the `registry!` invocation at the end of this module.
 //!
 //! Library code writes no files on its own: [`SceneRun::write_tables`] and the plot writers
 //! (feature `cli`) write only where the caller asks.
