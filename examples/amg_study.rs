@@ -17,13 +17,13 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use gpm::boundary::{Boundary, Walls};
 use gpm::diagnostics::{connectivity, Components};
-use gpm::geometry::{inside, jitter, lattice, number_density_volumes};
+use gpm::geometry::{jitter, lattice, number_density_volumes};
 use gpm::kernel::Weight;
 use gpm::neighbors::{NeighborConfig, NeighborList};
 use gpm::operators::div_sum;
 use gpm::particles::{Particles, Role};
 use gpm::poisson::{PoissonSolver, SolveInfo, SolveParams, SolverKind};
-use std::f64::consts::PI;
+use gpm::scene::manufactured::{exact, BandProblem, BandSpec};
 use std::time::Instant;
 
 #[derive(Parser, Debug)]
@@ -89,19 +89,11 @@ struct System<const D: usize> {
     setup_seconds: f64,
 }
 
-fn exact_grad<const D: usize>(x: &[f64; D]) -> [f64; D] {
-    let s: [f64; D] = std::array::from_fn(|a| (PI * x[a]).sin());
-    std::array::from_fn(|a| {
-        let others: f64 = (0..D).filter(|&b| b != a).map(|b| s[b] * s[b]).product();
-        PI * (2.0 * PI * x[a]).sin() * others
-    })
-}
-
 fn system<const D: usize>(n: usize, args: &Args) -> Result<System<D>> {
     let dx = 1.0 / n as f64;
     let h = args.h_over_dx * dx;
     let t = Instant::now();
-    let (x, role, vol, nl) = if args.boundary == "mirror" {
+    if args.boundary == "mirror" {
         let mut x = lattice([0.0; D], [1.0; D], dx);
         if args.jitter > 0.0 {
             jitter(&mut x, args.jitter * dx, 7 ^ n as u64);
@@ -117,49 +109,43 @@ fn system<const D: usize>(n: usize, args: &Args) -> Result<System<D>> {
         let vol = number_density_volumes(&nl);
         p.vol[..n_fluid].copy_from_slice(&vol[..n_fluid]);
         walls.place_ghosts(&mut p);
-        (p.x, p.role, p.vol, nl)
-    } else {
-        let band = (h / dx).ceil() + 1.0;
-        let mut x = lattice([-band * dx; D], [1.0 + band * dx; D], dx);
-        if args.jitter > 0.0 {
-            jitter(&mut x, args.jitter * dx, 7 ^ n as u64);
-        }
-        let role: Vec<Role> = x
+        let (x, role, vol) = (p.x, p.role, p.vol);
+        let setup_seconds = t.elapsed().as_secs_f64();
+        let comps = connectivity(&nl, &role);
+        // the mirror walls' source: the manufactured problem's f = −∇u on the fluid
+        let f: Vec<[f64; D]> = x
             .iter()
-            .map(|p| {
-                if inside(p, &[0.0; D], &[1.0; D]) {
-                    Role::Fluid
+            .zip(&role)
+            .map(|(p, r)| {
+                if r.is_fluid() {
+                    exact(p).1.map(|v| -v)
                 } else {
-                    Role::Dirichlet
+                    [0.0; D]
                 }
             })
             .collect();
-        let nl = NeighborList::build(NeighborConfig::new(Weight::WendlandC2, h, 0.0), &x)?;
-        let vol = number_density_volumes(&nl);
-        (x, role, vol, nl)
-    };
-    let setup_seconds = t.elapsed().as_secs_f64();
-    let comps = connectivity(&nl, &role);
-    let f: Vec<[f64; D]> = x
-        .iter()
-        .zip(&role)
-        .map(|(p, r)| {
-            if r.is_fluid() {
-                exact_grad(p).map(|v| -v)
-            } else {
-                [0.0; D]
-            }
+        let rhs = div_sum(&nl, &vol, &f);
+        Ok(System {
+            nl,
+            vol,
+            role,
+            comps,
+            rhs,
+            setup_seconds,
         })
-        .collect();
-    let rhs = div_sum(&nl, &vol, &f);
-    Ok(System {
-        nl,
-        vol,
-        role,
-        comps,
-        rhs,
-        setup_seconds,
-    })
+    } else {
+        // the Dirichlet band: the library's manufactured problem
+        let spec = BandSpec::new(n, args.h_over_dx).jittered(args.jitter, 7 ^ n as u64);
+        let p = BandProblem::<D>::build(&spec)?;
+        Ok(System {
+            nl: p.nl,
+            vol: p.vol,
+            role: p.role,
+            comps: p.comps,
+            rhs: p.rhs,
+            setup_seconds: p.setup_seconds,
+        })
+    }
 }
 
 fn params(kind: SolverKind, args: &Args) -> SolveParams {

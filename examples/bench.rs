@@ -424,10 +424,7 @@ fn cavity_reuse(a: &Args) -> Result<()> {
     writeln!(csv, "n,reuse,seconds_per_step,neighbors,assembly,solve")?;
     let mut per_step = [0.0; 2];
     for (k, reuse) in [true, false].into_iter().enumerate() {
-        let mut cfg = cavity::CavityConfig {
-            n,
-            ..Default::default()
-        };
+        let mut cfg = cavity::CavityConfig::default().with(|c| c.n = n);
         cfg.solve.warm_start = reuse;
         cfg.solve.reuse_symbolic = reuse;
         cfg.solve.reuse_numeric = reuse;

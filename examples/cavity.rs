@@ -16,9 +16,11 @@ use gpm::flow::{Integrator, Motion, Shifting, VolumeRule};
 use gpm::kernel::Weight;
 use gpm::poisson::SolverKind;
 use gpm::projection::Scheme;
-use gpm::record::{RecordError, RecordLevel, Recorder};
-use gpm::scene::cavity::{run_with, write_plots, write_tables, CavityConfig};
+use gpm::record::{RecordLevel, RecorderOptions};
+use gpm::scene::cavity::CavityConfig;
+use gpm::scene::run_recorded;
 use indicatif::{ProgressBar, ProgressStyle};
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -94,20 +96,19 @@ struct Args {
 }
 
 fn config(a: &Args) -> CavityConfig {
-    let mut cfg = CavityConfig {
-        re: a.re,
-        n: a.n,
-        scheme: a.scheme,
-        gradient: a.gradient,
-        weight: a.weight,
-        h_over_dx: a.h_ratio,
-        motion: a.motion,
-        integrator: a.integrator,
-        viscous_theta: a.theta,
-        source_ghosts: a.source_ghosts,
-        ..Default::default()
-    };
-    cfg.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+    let mut cfg = CavityConfig::default().with(|c| {
+        c.re = a.re;
+        c.n = a.n;
+        c.scheme = a.scheme;
+        c.gradient = a.gradient;
+        c.weight = a.weight;
+        c.h_over_dx = a.h_ratio;
+        c.motion = a.motion;
+        c.integrator = a.integrator;
+        c.viscous_theta = a.theta;
+        c.scene.source_ghosts = a.source_ghosts;
+        c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+    });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {
             coefficient: s,
@@ -121,16 +122,16 @@ fn config(a: &Args) -> CavityConfig {
         cfg.limits.cfl = c;
     }
     if let Some(t) = a.steady_tol {
-        cfg.steady.tol = t;
+        cfg.scene.steady.tol = t;
     }
     if let Some(w) = a.average {
-        cfg.steady.average_window = w;
+        cfg.scene.steady.average_window = w;
     }
     cfg.solve.solver = a.solver;
     cfg
 }
 
-fn run(a: Args) -> Result<()> {
+fn run(a: Args) -> Result<ExitCode> {
     let cfg = config(&a);
     cfg.validate().context("invalid configuration")?;
     let out = a
@@ -149,12 +150,6 @@ fn run(a: Args) -> Result<()> {
     };
     std::fs::create_dir_all(&out).with_context(|| format!("creating {out:?}"))?;
     let mcap = out.join("run.mcap");
-    let mut rec = Recorder::create(
-        &mcap,
-        a.record,
-        a.record_every,
-        &serde_json::json!({ "scene": "cavity", "config": &cfg }),
-    )?;
     // Ctrl-C stops the run after the current step; the recording is then finished cleanly
     let stop = Arc::new(AtomicBool::new(false));
     {
@@ -163,30 +158,31 @@ fn run(a: Args) -> Result<()> {
             .context("installing the Ctrl-C handler")?;
     }
     let t_end = cfg.t_end;
-    let capture = a.record == RecordLevel::Full;
-    let run = run_with(
+    let done = run_recorded(
         &cfg,
-        |sim| sim.projection.capture = capture,
-        |rep, sim| {
-            rec.write_step(rep, sim)?;
+        &mcap,
+        RecorderOptions::new(a.record, a.record_every),
+        &cfg.record_header(),
+        |_| {},
+        |rep, _| {
             bar.set_position((1000.0 * rep.time / t_end) as u64);
             bar.set_message(format!(
                 "{:.2} step {} ke {:.5}",
                 rep.time, rep.step, rep.projection.kinetic_energy
             ));
-            if stop.load(Ordering::SeqCst) {
-                return Err(RecordError::Interrupted { step: rep.step }.into());
-            }
-            Ok(())
+            Ok(if stop.load(Ordering::SeqCst) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
         },
-    );
+    )?;
     bar.finish_and_clear();
-    // finish the recording whatever happened, so that every recorded step reads back
-    let finished = rec.finish();
-    let (res, sim) = match run {
-        Ok(v) => v,
+    // the recording is finished whatever happened, so that every recorded step reads back
+    let run = match done.run {
+        Ok(run) => run,
         Err(e) => {
-            if let Err(fe) = &finished {
+            if let Err(fe) = &done.record {
                 eprintln!("error: finishing {} failed: {fe}", mcap.display());
             } else if a.record != RecordLevel::None {
                 eprintln!("the recording up to the failure is in {}", mcap.display());
@@ -194,12 +190,24 @@ fn run(a: Args) -> Result<()> {
             return Err(e).context("cavity run failed");
         }
     };
-    let summary = finished.with_context(|| format!("finishing {}", mcap.display()))?;
+    let summary = done
+        .record
+        .with_context(|| format!("finishing {}", mcap.display()))?;
     for note in &summary.notes {
         eprintln!("note: {note}");
     }
-    write_tables(&out, &res, &cfg).with_context(|| format!("writing tables into {out:?}"))?;
-    write_plots(&out, &res, &sim).context("writing plots")?;
+    if let Some(step) = run.interrupted() {
+        eprintln!(
+            "interrupted after step {step}; {} finished cleanly ({} steps)",
+            mcap.display(),
+            summary.steps
+        );
+        return Ok(ExitCode::from(130));
+    }
+    run.write_tables(&out, &cfg)
+        .with_context(|| format!("writing tables into {out:?}"))?;
+    run.write_plots(&out, &cfg).context("writing plots")?;
+    let res = &run.result;
     println!(
         "cavity Re {} n {} ({} fluid particles): {} steps to t = {:.2}, {:.1} s wall",
         res.re, res.n, res.particles, res.steps, res.t_end, res.wall_seconds
@@ -207,11 +215,11 @@ fn run(a: Args) -> Result<()> {
     match res.steady_time {
         Some(ts) => println!(
             "steady at t = {ts:.2} (max|Δprofile|/Δt = {:.1e} < {:.0e}); profiles averaged over {} samples",
-            res.steady_rate, cfg.steady.tol, res.averaged_samples
+            res.steady_rate, cfg.scene.steady.tol, res.averaged_samples
         ),
         None => println!(
             "NOT steady by t = {:.2} (max|Δprofile|/Δt = {:.1e}, tolerance {:.0e})",
-            res.t_end, res.steady_rate, cfg.steady.tol
+            res.t_end, res.steady_rate, cfg.scene.steady.tol
         ),
     }
     if let Some(g) = res.ghia {
@@ -238,12 +246,12 @@ fn run(a: Args) -> Result<()> {
         res.c0_max,
         out.display()
     );
-    Ok(())
+    Ok(ExitCode::SUCCESS)
 }
 
 fn main() -> ExitCode {
     match run(Args::parse()) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

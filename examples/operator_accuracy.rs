@@ -1322,7 +1322,7 @@ mod flows {
         let mut extra = 0.0;
         let re_key = cfg.re.round() as u32;
         let (ys, xs) = sample_positions(re_key);
-        let s = cfg.steady;
+        let s = cfg.scene.steady;
         let mut samples: Vec<(f64, Vec<f64>, Vec<f64>)> = Vec::new();
         let mut next = s.interval;
         let mut steady_time = None;
@@ -1406,7 +1406,7 @@ mod flows {
             if sim.advance().is_err() {
                 break;
             }
-            let e = taylor_green::errors(&sim, cfg.re, cfg.amplitude);
+            let e = taylor_green::errors(&sim, cfg.re, cfg.scene.amplitude);
             out.push((sim.time, e.l1_velocity_error, e.l1_pressure_error));
         }
         Ok(out)
@@ -1441,10 +1441,11 @@ mod flows {
         // Taylor–Green, step by step: the Lagrangian frame against the Eulerian one
         let ns = if args.quick { 24 } else { 48 };
         let nsteps = 12;
-        let tg = |motion| TaylorGreenConfig {
-            n: ns,
-            motion,
-            ..Default::default()
+        let tg = |motion| {
+            TaylorGreenConfig::default().with(|c| {
+                c.n = ns;
+                c.motion = motion;
+            })
         };
         let mut steps_csv = String::from("frame,variant,n,cfl,step,t,u_l1,p_l1\n");
         let mut rows: Vec<(String, Steps)> = Vec::new();
@@ -1544,11 +1545,10 @@ mod flows {
         }
         write(&out.join("tg_steps.csv"), &steps_csv)?;
         // Lagrangian cavity against Ghia
-        let mut base = CavityConfig {
-            motion: Motion::Lagrangian,
-            volumes: VolumeRule::NumberDensity,
-            ..Default::default()
-        };
+        let mut base = CavityConfig::default().with(|c| {
+            c.motion = Motion::Lagrangian;
+            c.volumes = VolumeRule::NumberDensity;
+        });
         base.n = args.cavity_n.unwrap_or(if args.quick { 24 } else { 50 });
         base.t_end = args
             .cavity_t_end
@@ -1743,13 +1743,12 @@ mod weights {
         );
         for &w in &cw {
             for &r in &cr {
-                let cfg = CavityConfig {
-                    n: cn,
-                    t_end: ct,
-                    weight: w,
-                    h_over_dx: r,
-                    ..Default::default()
-                };
+                let cfg = CavityConfig::default().with(|c| {
+                    c.n = cn;
+                    c.t_end = ct;
+                    c.weight = w;
+                    c.h_over_dx = r;
+                });
                 let res = cavity::run(&cfg, |_, _| Ok(()));
                 match res {
                     Ok(res) => {

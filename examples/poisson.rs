@@ -12,14 +12,9 @@
 
 use anyhow::{Context, Result};
 use clap::Parser;
-use gpm::diagnostics::{connectivity, norm_h01, norm_l2, Region};
-use gpm::geometry::{inside, jitter, lattice, number_density_volumes};
 use gpm::kernel::Weight;
-use gpm::neighbors::{NeighborConfig, NeighborList};
-use gpm::operators::div_sum;
-use gpm::particles::Role;
 use gpm::poisson::{PoissonSolver, SolveParams, SolverKind};
-use std::f64::consts::PI;
+use gpm::scene::manufactured::{BandProblem, BandSpec};
 use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -59,79 +54,38 @@ struct Row {
     seconds: f64,
 }
 
-fn exact<const D: usize>(x: &[f64; D]) -> (f64, [f64; D]) {
-    let s: [f64; D] = std::array::from_fn(|a| (PI * x[a]).sin());
-    let u: f64 = s.iter().map(|v| v * v).product();
-    let g = std::array::from_fn(|a| {
-        let others: f64 = (0..D).filter(|&b| b != a).map(|b| s[b] * s[b]).product();
-        PI * (2.0 * PI * x[a]).sin() * others
-    });
-    (u, g)
-}
-
 fn solve<const D: usize>(
     n: usize,
     h_over_dx: f64,
     jit: f64,
     args: &Args,
 ) -> Result<(usize, f64, f64, f64)> {
-    let dx = 1.0 / n as f64;
-    let h = h_over_dx * dx;
-    let band = (h / dx).ceil() + 1.0;
-    let lo = [-band * dx; D];
-    let hi = [1.0 + band * dx; D];
-    let mut x = lattice(lo, hi, dx);
-    if jit > 0.0 {
-        jitter(&mut x, jit * dx, args.seed ^ (n as u64) << 8 ^ D as u64);
-    }
     let t = Instant::now();
-    let role: Vec<Role> = x
-        .iter()
-        .map(|p| {
-            if inside(p, &[0.0; D], &[1.0; D]) {
-                Role::Fluid
-            } else {
-                Role::Dirichlet
-            }
-        })
-        .collect();
-    let nl = NeighborList::build(NeighborConfig::new(args.weight, h, 0.0), &x)?;
-    let vol = number_density_volumes(&nl);
-    let comps = connectivity(&nl, &role);
-    comps.check(0)?;
-    let (u_ex, f): (Vec<f64>, Vec<[f64; D]>) = x
-        .iter()
-        .zip(&role)
-        .map(|(p, r)| {
-            let (u, g) = exact(p);
-            if r.is_fluid() {
-                (u, g.map(|v| -v))
-            } else {
-                (0.0, [0.0; D])
-            }
-        })
-        .unzip();
-    let rhs = div_sum(&nl, &vol, &f);
-    let mut phi = vec![0.0; x.len()];
+    let spec = BandSpec::new(n, h_over_dx)
+        .with_weight(args.weight)
+        .jittered(jit, args.seed ^ (n as u64) << 8 ^ D as u64);
+    let prob = BandProblem::<D>::build(&spec)?;
+    prob.comps.check(0)?;
+    let mut phi = vec![0.0; prob.x.len()];
     let mut solver = PoissonSolver::new();
     let params = SolveParams {
         solver: args.solver,
         ..Default::default()
     };
     solver
-        .solve(&nl, &vol, &role, &comps, &rhs, &mut phi, &params)
+        .solve(
+            &prob.nl,
+            &prob.vol,
+            &prob.role,
+            &prob.comps,
+            &prob.rhs,
+            &mut phi,
+            &params,
+        )
         .context("Poisson solve")?;
     let seconds = t.elapsed().as_secs_f64();
-    let err: Vec<f64> = phi.iter().zip(&u_ex).map(|(a, b)| a - b).collect();
-    let l2 = norm_l2(&vol, &err, &role, Region::Omega) / norm_l2(&vol, &u_ex, &role, Region::Omega);
-    let h01 = norm_h01(&nl, &vol, &err, &role, Region::Omega)
-        / norm_h01(&nl, &vol, &u_ex, &role, Region::Omega);
-    Ok((
-        role.iter().filter(|r| r.is_fluid()).count(),
-        l2,
-        h01,
-        seconds,
-    ))
+    let (l2, h01) = prob.errors(&phi);
+    Ok((prob.n_fluid(), l2, h01, seconds))
 }
 
 fn order(rows: &[&Row], f: impl Fn(&Row) -> f64) -> f64 {

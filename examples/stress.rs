@@ -31,11 +31,12 @@ use clap::{Parser, ValueEnum};
 use gpm::error::{Error, InputError, SolveError, StabilityError};
 use gpm::flow::{FlowReport, Motion, StabilityGuard};
 use gpm::record::replay::Replay;
-use gpm::record::{RecordLevel, Recorder};
-use gpm::scene::{cavity, taylor_green};
+use gpm::record::{RecordError, RecordLevel, RecordSummary, RecorderOptions};
+use gpm::scene::{cavity, run_recorded, taylor_green, Scene, SceneConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
@@ -275,6 +276,34 @@ fn kinetic_energy<const D: usize>(p: &gpm::particles::Particles<D>) -> f64 {
         .sum()
 }
 
+/// One stressed run of any scene: perturbed at the start (`amp` = the velocity scale),
+/// recorded (diagnostics every step), monitored.
+fn run_stressed<S: Scene<2>>(
+    cfg: &SceneConfig<S>,
+    c: &Case,
+    amp: f64,
+    mcap: &Path,
+    mon: &mut Monitor,
+    ke0: &mut f64,
+) -> Result<(Result<(), Error>, Result<RecordSummary, RecordError>)> {
+    let header = serde_json::json!({ "scene": S::NAME, "config": cfg, "stress": c });
+    let done = run_recorded(
+        cfg,
+        mcap,
+        RecorderOptions::new(RecordLevel::Diagnostics, 10),
+        &header,
+        |sim| {
+            perturb(&mut sim.particles, c.perturb, amp, c.seed);
+            *ke0 = kinetic_energy(&sim.particles);
+        },
+        |rep, _| {
+            mon.step(rep);
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
+    Ok((done.run.map(|_| ()), done.record))
+}
+
 fn run_case(c: &Case, a: &Args, dir: &Path) -> Result<Outcome> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let mcap = dir.join("run.mcap");
@@ -291,70 +320,39 @@ fn run_case(c: &Case, a: &Args, dir: &Path) -> Result<Outcome> {
         (c.dt_factor > 0.0).then_some(c.dt_factor * dt_cfl)
     };
     let mut ke0 = 0.0;
-    let (result, rec) = match c.scene {
+    let (result, record) = match c.scene {
         SceneName::Cavity => {
-            let mut cfg = cavity::CavityConfig {
-                re: c.re,
-                n: c.n,
-                t_end: c.t_end,
-                motion: c.motion,
-                ..Default::default()
-            };
-            cfg.steady.stop_when_steady = false;
+            let mut cfg = cavity::CavityConfig::default().with(|k| {
+                k.re = c.re;
+                k.n = c.n;
+                k.t_end = c.t_end;
+                k.motion = c.motion;
+                k.scene.steady.stop_when_steady = false;
+            });
             cfg.limits.dt_fixed = fixed(cfg.limits.cfl, cfg.h_over_dx, &mut mon);
             cfg.limits.guard = guard(c.guard, c.scene, a);
-            let config = serde_json::json!({ "scene": "cavity", "config": &cfg, "stress": c });
-            let mut rec = Recorder::create(&mcap, RecordLevel::Diagnostics, 10, &config)?;
-            let r = cavity::run_with(
-                &cfg,
-                |sim| {
-                    perturb(&mut sim.particles, c.perturb, cfg.lid, c.seed);
-                    ke0 = kinetic_energy(&sim.particles);
-                },
-                |rep, sim| {
-                    rec.write_step(rep, sim)?;
-                    mon.step(rep);
-                    Ok(())
-                },
-            );
-            (r.map(|_| ()), rec)
+            let amp = cfg.scene.lid;
+            run_stressed(&cfg, c, amp, &mcap, &mut mon, &mut ke0)?
         }
         SceneName::TaylorGreen => {
-            let mut cfg = taylor_green::TaylorGreenConfig {
-                re: c.re,
-                n: c.n,
-                t_end: c.t_end,
-                motion: c.motion,
-                ..Default::default()
-            };
+            let mut cfg = taylor_green::TaylorGreenConfig::default().with(|k| {
+                k.re = c.re;
+                k.n = c.n;
+                k.t_end = c.t_end;
+                k.motion = c.motion;
+            });
             cfg.limits.dt_fixed = fixed(cfg.limits.cfl, cfg.h_over_dx, &mut mon);
             cfg.limits.guard = guard(c.guard, c.scene, a);
-            let config =
-                serde_json::json!({ "scene": "taylor_green", "config": &cfg, "stress": c });
-            let mut rec = Recorder::create(&mcap, RecordLevel::Diagnostics, 10, &config)?;
-            let r = taylor_green::run_with(
-                &cfg,
-                |sim| {
-                    perturb(&mut sim.particles, c.perturb, cfg.amplitude, c.seed);
-                    ke0 = kinetic_energy(&sim.particles);
-                },
-                |rep, sim| {
-                    rec.write_step(rep, sim)?;
-                    mon.step(rep);
-                    Ok(())
-                },
-            );
-            (r.map(|_| ()), rec)
+            let amp = cfg.scene.amplitude;
+            run_stressed(&cfg, c, amp, &mcap, &mut mon, &mut ke0)?
         }
     };
-    // finish the file whatever happened, then read it back
-    let summary = rec
-        .finish()
-        .with_context(|| format!("finishing {}", mcap.display()))?;
+    // the file is finished whatever happened; read it back
+    let summary = record.with_context(|| format!("finishing {}", mcap.display()))?;
     let mut o = mon.o;
     o.ke_initial = ke0;
     match result {
-        Ok(()) => o.kind = "completed".into(),
+        Ok(_) => o.kind = "completed".into(),
         Err(e) => classify(&e, &mut o),
     }
     let back = Replay::open(&mcap).with_context(|| format!("reading {}", mcap.display()))?;

@@ -21,9 +21,11 @@ use clap::Parser;
 use gpm::flow::{Integrator, Motion, Shifting};
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
-use gpm::record::{RecordError, RecordLevel, Recorder};
-use gpm::scene::taylor_green::{build, run, run_with, TaylorGreenConfig};
+use gpm::record::{RecordLevel, RecorderOptions};
+use gpm::scene::run_recorded;
+use gpm::scene::taylor_green::{build, run, TaylorGreenConfig};
 use std::io::Write;
+use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -89,19 +91,18 @@ struct Args {
 }
 
 fn config(a: &Args) -> TaylorGreenConfig {
-    let mut cfg = TaylorGreenConfig {
-        n: a.n,
-        t_end: a.t_end,
-        re: a.re,
-        scheme: a.scheme,
-        gradient: a.gradient,
-        weight: a.weight,
-        h_over_dx: a.h_ratio,
-        motion: a.motion,
-        integrator: a.integrator,
-        viscous_theta: a.theta,
-        ..Default::default()
-    };
+    let mut cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = a.n;
+        c.t_end = a.t_end;
+        c.re = a.re;
+        c.scheme = a.scheme;
+        c.gradient = a.gradient;
+        c.weight = a.weight;
+        c.h_over_dx = a.h_ratio;
+        c.motion = a.motion;
+        c.integrator = a.integrator;
+        c.viscous_theta = a.theta;
+    });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {
             coefficient: s,
@@ -286,75 +287,53 @@ fn convergence(a: &Args) -> Result<()> {
     Ok(())
 }
 
-fn single(a: &Args) -> Result<()> {
+fn single(a: &Args) -> Result<ExitCode> {
     let cfg = config(a);
     cfg.validate().context("invalid configuration")?;
     std::fs::create_dir_all(&a.out)?;
     let mcap = a.out.join("run.mcap");
-    let mut rec = Recorder::create(
-        &mcap,
-        a.record,
-        a.record_every,
-        &serde_json::json!({ "scene": "taylor_green", "config": &cfg }),
-    )?;
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = stop.clone();
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
             .context("installing the Ctrl-C handler")?;
     }
-    let capture = a.record == RecordLevel::Full;
-    let run = run_with(
+    let done = run_recorded(
         &cfg,
-        |sim| sim.projection.capture = capture,
-        |rep, sim| {
-            rec.write_step(rep, sim)?;
-            if stop.load(Ordering::SeqCst) {
-                return Err(RecordError::Interrupted { step: rep.step }.into());
-            }
-            Ok(())
+        &mcap,
+        RecorderOptions::new(a.record, a.record_every),
+        &cfg.record_header(),
+        |_| {},
+        |_, _| {
+            Ok(if stop.load(Ordering::SeqCst) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
         },
-    );
-    let finished = rec.finish();
-    let res = match run {
+    )?;
+    let run = match done.run {
         Ok(r) => r,
         Err(e) => {
-            if let Err(fe) = &finished {
+            if let Err(fe) = &done.record {
                 eprintln!("error: finishing {} failed: {fe}", mcap.display());
             }
             return Err(e).context("Taylor–Green run failed");
         }
     };
-    finished.with_context(|| format!("finishing {}", mcap.display()))?;
-    #[derive(serde::Serialize)]
-    struct Summary<'a> {
-        re: f64,
-        n: usize,
-        steps: u64,
-        t_end: f64,
-        wall_seconds: f64,
-        l1_velocity_error: f64,
-        linf_decay_error: f64,
-        l1_pressure_error: f64,
-        max_stability_ratio: f64,
-        config: &'a TaylorGreenConfig,
+    let summary = done
+        .record
+        .with_context(|| format!("finishing {}", mcap.display()))?;
+    if let Some(step) = run.interrupted() {
+        eprintln!(
+            "interrupted after step {step}; {} finished cleanly ({} steps)",
+            mcap.display(),
+            summary.steps
+        );
+        return Ok(ExitCode::from(130));
     }
-    let s = Summary {
-        re: res.re,
-        n: res.n,
-        steps: res.steps,
-        t_end: res.t_end,
-        wall_seconds: res.wall_seconds,
-        l1_velocity_error: res.errors.l1_velocity_error,
-        linf_decay_error: res.errors.linf_decay_error,
-        l1_pressure_error: res.errors.l1_pressure_error,
-        max_stability_ratio: res.max_stability_ratio,
-        config: &cfg,
-    };
-    std::fs::write(
-        a.out.join("summary.json"),
-        serde_json::to_string_pretty(&s)?,
-    )?;
+    run.write_tables(&a.out, &cfg)?;
+    let res = &run.result;
     println!(
         "Taylor–Green Re {} n {} t = {:.2} ({} steps, {:.2} s): L1 velocity error {:.3e}, max-speed decay error {:.3e}, L1 pressure error {:.3e}",
         res.re,
@@ -366,18 +345,18 @@ fn single(a: &Args) -> Result<()> {
         res.errors.linf_decay_error,
         res.errors.l1_pressure_error
     );
-    Ok(())
+    Ok(ExitCode::SUCCESS)
 }
 
 fn main() -> ExitCode {
     let a = Args::parse();
     let r = if a.convergence {
-        convergence(&a)
+        convergence(&a).map(|()| ExitCode::SUCCESS)
     } else {
         single(&a)
     };
     match r {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE

@@ -93,12 +93,11 @@ fn main_inner(a: Args) -> Result<()> {
             if a.quick && v.name != variants[0].name && n > 24 {
                 continue;
             }
-            let mut cfg = CavityConfig {
-                n,
-                weight: v.weight,
-                h_over_dx: v.h_over_dx,
-                ..Default::default()
-            };
+            let mut cfg = CavityConfig::default().with(|c| {
+                c.n = n;
+                c.weight = v.weight;
+                c.h_over_dx = v.h_over_dx;
+            });
             if v.explicit {
                 cfg.viscous_theta = 0.0;
                 cfg.integrator = Integrator::Euler;
@@ -124,13 +123,12 @@ fn main_inner(a: Args) -> Result<()> {
     for v in variants.iter().take(if a.quick { 1 } else { 3 }) {
         let mut pts = Vec::new();
         for &n in &tg_ns {
-            let mut cfg = TaylorGreenConfig {
-                n,
-                t_end: 1.0,
-                weight: v.weight,
-                h_over_dx: v.h_over_dx,
-                ..Default::default()
-            };
+            let mut cfg = TaylorGreenConfig::default().with(|c| {
+                c.n = n;
+                c.t_end = 1.0;
+                c.weight = v.weight;
+                c.h_over_dx = v.h_over_dx;
+            });
             if v.explicit {
                 cfg.viscous_theta = 0.0;
                 cfg.integrator = Integrator::Euler;

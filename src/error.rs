@@ -389,13 +389,6 @@ pub enum RecordError {
         /// The projection's error.
         source: Box<Error>,
     },
-    /// The run was stopped on request (Ctrl-C) after this step; the observer returns it to end
-    /// the run early, and the caller still finishes the file.
-    #[error("run interrupted after step {step}")]
-    Interrupted {
-        /// Last step completed.
-        step: u64,
-    },
 }
 
 /// The crate's error: one variant per stage.

@@ -394,10 +394,7 @@ fn radius_at_or_below_the_spacing_is_named() {
     }
     // a scene configuration cannot ask for it
     for hdx in [1.0, 0.5, 0.0, -2.0, f64::NAN] {
-        let cfg = CavityConfig {
-            h_over_dx: hdx,
-            ..Default::default()
-        };
+        let cfg = CavityConfig::default().with(|c| c.h_over_dx = hdx);
         match cfg.validate() {
             Err(InputError::Parameter { name, .. }) => assert_eq!(name, "h_over_dx"),
             other => panic!("{other:?}"),
@@ -498,16 +495,15 @@ fn a_disconnected_cluster_is_named_with_exactly_its_particles() {
 
 #[test]
 fn solver_non_convergence_carries_its_iterations_and_residual() {
-    let cfg = CavityConfig {
-        n: 16,
-        solve: SolveParams {
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 16;
+        c.solve = SolveParams {
             solver: SolverKind::Cg,
             max_iters: 3,
             rel_tol: 1e-14,
             ..SolveParams::default()
-        },
-        ..Default::default()
-    };
+        };
+    });
     let mut sim = cavity::build(&cfg).unwrap();
     match sim.advance() {
         Err(Error::Solve(e @ SolveError::NoConvergence { .. })) => {
@@ -529,13 +525,12 @@ fn solver_non_convergence_carries_its_iterations_and_residual() {
         other => panic!("{other:?}"),
     }
     // zero iterations is refused by the configuration
-    let cfg = CavityConfig {
-        solve: SolveParams {
+    let cfg = CavityConfig::default().with(|c| {
+        c.solve = SolveParams {
             max_iters: 0,
             ..SolveParams::default()
-        },
-        ..Default::default()
-    };
+        };
+    });
     assert!(matches!(
         cfg.validate(),
         Err(InputError::Parameter { name, .. }) if name == "solve.max_iters"
@@ -597,7 +592,7 @@ fn invalid_configurations_name_the_key() {
     assert_eq!(cav(&|c| c.n = 0), "n");
     assert_eq!(cav(&|c| c.n = 3), "n");
     assert_eq!(cav(&|c| c.t_end = f64::NAN), "t_end");
-    assert_eq!(cav(&|c| c.lid = f64::INFINITY), "lid");
+    assert_eq!(cav(&|c| c.scene.lid = f64::INFINITY), "lid");
     assert_eq!(cav(&|c| c.skin_over_h = -0.1), "skin_over_h");
     assert_eq!(cav(&|c| c.viscous_theta = f64::NAN), "viscous_theta");
     assert_eq!(cav(&|c| c.limits.cfl = f64::NAN), "limits.cfl");
@@ -622,9 +617,9 @@ fn invalid_configurations_name_the_key() {
     );
     assert_eq!(cav(&|c| c.solve.rel_tol = f64::NAN), "solve.rel_tol");
     assert_eq!(cav(&|c| c.solve.abs_tol = -1.0), "solve.abs_tol");
-    assert_eq!(cav(&|c| c.steady.tol = f64::NAN), "steady.tol");
+    assert_eq!(cav(&|c| c.scene.steady.tol = f64::NAN), "steady.tol");
     assert_eq!(
-        cav(&|c| c.steady.average_window = f64::NAN),
+        cav(&|c| c.scene.steady.average_window = f64::NAN),
         "steady.average_window"
     );
     assert_eq!(
@@ -639,21 +634,17 @@ fn invalid_configurations_name_the_key() {
     };
     assert_eq!(tg(&|c| c.re = -1.0), "re");
     assert_eq!(tg(&|c| c.n = 7), "n");
-    assert_eq!(tg(&|c| c.amplitude = f64::NAN), "amplitude");
+    assert_eq!(tg(&|c| c.scene.amplitude = f64::NAN), "amplitude");
     assert_eq!(tg(&|c| c.h_over_dx = f64::NAN), "h_over_dx");
     assert_eq!(tg(&|c| c.skin_over_h = f64::NAN), "skin_over_h");
     assert_eq!(tg(&|c| c.limits.force = -1.0), "limits.force");
     assert_eq!(tg(&|c| c.solve.max_iters = 0), "solve.max_iters");
     // the scenes' build refuses them too (nothing is allocated for n = 0)
-    let e = input_err(cavity::build(&CavityConfig {
-        n: 0,
-        ..Default::default()
-    }));
+    let e = input_err(cavity::build(&CavityConfig::default().with(|c| c.n = 0)));
     assert_names(&e.to_string(), &["parameter 'n' = 0"]);
-    let e = input_err(taylor_green::build(&TaylorGreenConfig {
-        re: f64::NAN,
-        ..Default::default()
-    }));
+    let e = input_err(taylor_green::build(
+        &TaylorGreenConfig::default().with(|c| c.re = f64::NAN),
+    ));
     assert_names(&e.to_string(), &["parameter 're' = NaN"]);
     // a recorded /config message's config member reads back through the same path
     let v = serde_json::json!({ "re": 400.0, "n": 16, "limits": { "guard": { "speed_over_ref": 3.0 } } });
@@ -711,10 +702,7 @@ fn invalid_configurations_name_the_key() {
 fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
     // speed bound below what the lid drives: the step that first exceeds it is named, with the
     // fastest particle, and the simulation's clock says that step was taken
-    let mut cfg = CavityConfig {
-        n: 12,
-        ..Default::default()
-    };
+    let mut cfg = CavityConfig::default().with(|c| c.n = 12);
     cfg.limits.guard = StabilityGuard {
         speed_over_ref: Some(0.3),
         ..Default::default()
@@ -754,10 +742,7 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         &["max speed / u_ref", "fastest particle", "step"],
     );
     // Theorem 4.5 ratio: the theory bounds it by 1; a bound below the measured ratio trips
-    let mut cfg = CavityConfig {
-        n: 12,
-        ..Default::default()
-    };
+    let mut cfg = CavityConfig::default().with(|c| c.n = 12);
     cfg.limits.guard.stability_ratio = Some(1e-3);
     match cavity::build(&cfg).unwrap().advance() {
         Err(Error::Stability(StabilityError::BlowUp {
@@ -772,10 +757,7 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         other => panic!("{other:?}"),
     }
     // energy growth: from the second step on, above the floor
-    let mut cfg = TaylorGreenConfig {
-        n: 16,
-        ..Default::default()
-    };
+    let mut cfg = TaylorGreenConfig::default().with(|c| c.n = 16);
     cfg.limits.guard.energy_growth = Some(0.5);
     match taylor_green::build(&cfg).unwrap().advance() {
         Ok(_) => {}
@@ -797,11 +779,7 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         other => panic!("{other:?}"),
     }
     // the guards are off by default: the same runs go on
-    let mut sim = cavity::build(&CavityConfig {
-        n: 12,
-        ..Default::default()
-    })
-    .unwrap();
+    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 12)).unwrap();
     for _ in 0..20 {
         sim.advance().unwrap();
     }
@@ -811,12 +789,11 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
 fn dt_bound_is_the_smallest_limit_of_time_step() {
     // dt_bound and time_step agree whenever no fixed step or dt_max intervenes
     for theta in [0.0, 0.5] {
-        let mut cfg = TaylorGreenConfig {
-            n: 16,
-            viscous_theta: theta,
-            re: 5.0,
-            ..Default::default()
-        };
+        let mut cfg = TaylorGreenConfig::default().with(|c| {
+            c.n = 16;
+            c.viscous_theta = theta;
+            c.re = 5.0;
+        });
         cfg.limits.visc = 0.5;
         let mut sim = taylor_green::build(&cfg).unwrap();
         for _ in 0..3 {
@@ -851,11 +828,7 @@ fn dt_bound_is_the_smallest_limit_of_time_step() {
 // MCAP files: unreadable, foreign, truncated
 
 fn record_run(path: &Path, steps: usize) {
-    let mut sim = cavity::build(&CavityConfig {
-        n: 10,
-        ..Default::default()
-    })
-    .unwrap();
+    let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 10)).unwrap();
     let mut rec =
         Recorder::create(path, RecordLevel::Diagnostics, 10, &serde_json::json!({})).unwrap();
     for _ in 0..steps {

@@ -11,6 +11,8 @@ use gpm::particles::{Particles, Role};
 use gpm::projection::{ProjectionParams, Scheme};
 use gpm::scene::cavity::{self, CavityConfig};
 use gpm::scene::taylor_green::{self, TaylorGreenConfig};
+use gpm::scene::{run_scene, RunEnd};
+use std::ops::ControlFlow;
 use std::path::Path;
 
 /// Reads a two-column CSV (with `#` comments and a header), written independently of
@@ -49,38 +51,52 @@ fn rms_against(reference: &[(f64, f64)], profile: &[(f64, f64)]) -> f64 {
 
 #[test]
 fn cavity_re100_short_run_against_ghia() {
-    let cfg = CavityConfig {
-        n: 24,
-        t_end: 30.0,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 24;
+        c.t_end = 30.0;
+    });
     let mut steps = 0;
-    let res = cavity::run(&cfg, |rep, _| {
-        let p = &rep.projection;
-        assert!(
-            p.stability_ratio <= 1.0,
-            "step {}: ratio {}",
-            rep.step,
-            p.stability_ratio
-        );
-        assert!(p.kinetic_energy.is_finite() && p.max_speed.is_finite());
-        assert_eq!(
-            p.connectivity.floating, 1,
-            "one floating (all-Neumann) component"
-        );
-        assert_eq!(p.connectivity.isolated, 0);
-        assert!(p.div_after.is_finite());
-        steps += 1;
-        Ok(())
-    })
+    let run = run_scene(
+        &cfg,
+        |_| {},
+        |rep, _| {
+            let p = &rep.projection;
+            assert!(
+                p.stability_ratio <= 1.0,
+                "step {}: ratio {}",
+                rep.step,
+                p.stability_ratio
+            );
+            assert!(p.kinetic_energy.is_finite() && p.max_speed.is_finite());
+            assert_eq!(
+                p.connectivity.floating, 1,
+                "one floating (all-Neumann) component"
+            );
+            assert_eq!(p.connectivity.isolated, 0);
+            assert!(p.div_after.is_finite());
+            steps += 1;
+            Ok(ControlFlow::Continue(()))
+        },
+    )
     .unwrap();
+    assert_eq!(
+        run.end,
+        RunEnd::Scene,
+        "the cavity stops itself once steady"
+    );
+    let res = &run.result;
     assert!(res.steady, "not steady by t = {}", res.t_end);
     assert_eq!(steps as u64, res.steps);
     // the crate's own errors
     let g = res.ghia.expect("Re 100 table");
     // independent check: written profiles against the data files
     let dir = std::env::temp_dir().join(format!("gpm_cavity_test_{}", std::process::id()));
-    cavity::write_tables(&dir, &res, &cfg).unwrap();
+    let written = run.write_tables(&dir, &cfg).unwrap();
+    let names: Vec<_> = written
+        .iter()
+        .filter_map(|p| p.file_name()?.to_str())
+        .collect();
+    assert_eq!(names, ["profile_u.csv", "profile_v.csv", "summary.json"]);
     let pu = read_csv(&dir.join("profile_u.csv"));
     let pv = read_csv(&dir.join("profile_v.csv"));
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
@@ -102,11 +118,10 @@ fn cavity_re100_short_run_against_ghia() {
 fn taylor_green_accuracy_and_spatial_order() {
     let mut errs = Vec::new();
     for n in [16usize, 32] {
-        let cfg = TaylorGreenConfig {
-            n,
-            t_end: 0.5,
-            ..Default::default()
-        };
+        let cfg = TaylorGreenConfig::default().with(|c| {
+            c.n = n;
+            c.t_end = 0.5;
+        });
         let r = taylor_green::run(&cfg, |rep, _| {
             assert!(rep.projection.stability_ratio <= 1.0);
             Ok(())
@@ -125,12 +140,11 @@ fn taylor_green_accuracy_and_spatial_order() {
 #[test]
 fn incremental_schemes_have_higher_temporal_order() {
     let state = |scheme: Scheme, dt: f64| -> Vec<[f64; 2]> {
-        let mut cfg = TaylorGreenConfig {
-            n: 16,
-            t_end: 0.16,
-            scheme,
-            ..Default::default()
-        };
+        let mut cfg = TaylorGreenConfig::default().with(|c| {
+            c.n = 16;
+            c.t_end = 0.16;
+            c.scheme = scheme;
+        });
         cfg.limits.dt_fixed = Some(dt);
         let mut sim = taylor_green::build(&cfg).unwrap();
         for _ in 0..(0.16 / dt).round() as usize {
@@ -335,11 +349,7 @@ fn stage_plans_follow_the_scene() {
     use gpm::boundary::{Boundary, PeriodicBox, VectorKind};
     use gpm::flow::Stage::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
-    let tg = taylor_green::build(&TaylorGreenConfig {
-        n: 16,
-        ..Default::default()
-    })
-    .unwrap();
+    let tg = taylor_green::build(&TaylorGreenConfig::default().with(|c| c.n = 16)).unwrap();
     let plan = tg.plan();
     for s in [
         Periodic,
@@ -362,11 +372,7 @@ fn stage_plans_follow_the_scene() {
     ] {
         assert!(!plan.has(s), "Taylor–Green has {s:?}: {plan:?}");
     }
-    let cav = cavity::build(&CavityConfig {
-        n: 12,
-        ..Default::default()
-    })
-    .unwrap();
+    let cav = cavity::build(&CavityConfig::default().with(|c| c.n = 12)).unwrap();
     assert!(cav.plan().has(Ghosts) && !cav.plan().has(Periodic) && !cav.plan().has(BodyForce));
 
     /// A periodic box that counts every call a ghost stage would make.
@@ -397,10 +403,7 @@ fn stage_plans_follow_the_scene() {
             self.inner.confine(p)
         }
     }
-    let cfg = TaylorGreenConfig {
-        n: 16,
-        ..Default::default()
-    };
+    let cfg = TaylorGreenConfig::default().with(|c| c.n = 16);
     let base = taylor_green::build(&cfg).unwrap();
     let counting = Counting {
         inner: PeriodicBox {
@@ -427,5 +430,121 @@ fn stage_plans_follow_the_scene() {
         sim.boundary.calls.load(Ordering::Relaxed),
         before,
         "ghost stages ran in a scene without walls"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// scenes: configuration layout, registry, observers that stop a run
+
+/// The keys a configuration reads are exactly the keys it writes (the shared ones first, in
+/// the layout of the recorded `/config`), for every registered scene.
+#[test]
+fn scene_configuration_keys_are_the_serialised_keys() {
+    fn check<S: gpm::scene::SceneParams>() {
+        let v = serde_json::to_value(gpm::scene::SceneConfig::<S>::default()).unwrap();
+        let mut written: Vec<&str> = v.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+        let mut read: Vec<&str> = gpm::scene::SceneConfig::<S>::keys().collect();
+        written.sort_unstable();
+        read.sort_unstable();
+        assert_eq!(written, read, "{}", S::NAME);
+    }
+    check::<cavity::Cavity>();
+    check::<taylor_green::TaylorGreen>();
+    assert_eq!(gpm::scene::SCENES, ["cavity", "taylor_green"]);
+}
+
+#[test]
+fn scene_configuration_round_trips_and_keeps_the_flat_layout() {
+    use gpm::scene::config_from_json;
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 12;
+        c.re = 400.0;
+        c.limits.cfl = 0.15;
+        c.scene.lid = -2.0;
+        c.scene.steady.tol = 1e-4;
+    });
+    let text = serde_json::to_string(&cfg).unwrap();
+    let back: CavityConfig = config_from_json(&text).unwrap();
+    assert_eq!(back, cfg);
+    // hand-written flat JSON (the layout of configurations recorded before the scene trait):
+    // shared and scene keys side by side; missing keys take the scene's defaults
+    let flat =
+        r#"{"re": 400, "n": 12, "lid": -2, "steady": {"tol": 1e-4}, "limits": {"cfl": 0.15}}"#;
+    let read: CavityConfig = config_from_json(flat).unwrap();
+    assert_eq!(read, cfg);
+    assert_eq!(read.t_end, 40.0, "the cavity's own default end time");
+    let tg: TaylorGreenConfig = config_from_json(r#"{"amplitude": 0.5, "n": 16}"#).unwrap();
+    assert_eq!((tg.scene.amplitude, tg.n, tg.t_end), (0.5, 16, 2.0));
+    // a scene's key is unknown to another scene; a repeated key is refused, naming it
+    for (json, key, needle) in [
+        (r#"{"lid": 1}"#, "lid", "unknown field `lid`"),
+        (r#"{"n": 12, "n": 16}"#, "n", "duplicate field `n`"),
+    ] {
+        match config_from_json::<TaylorGreenConfig>(json) {
+            Err(gpm::error::InputError::Config { key: k, reason }) => {
+                assert_eq!(k, key, "{json}");
+                assert!(reason.contains(needle), "{json}: {reason}");
+            }
+            other => panic!("{json}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn scenes_are_found_by_name() {
+    struct Name;
+    impl gpm::scene::SceneVisitor for Name {
+        type Output = (&'static str, usize);
+        fn visit<const D: usize, S: gpm::scene::Scene<D>>(self) -> Self::Output {
+            (S::NAME, D)
+        }
+    }
+    assert_eq!(
+        gpm::scene::visit_scene("cavity", Name).unwrap(),
+        ("cavity", 2)
+    );
+    assert_eq!(
+        gpm::scene::visit_scene("Taylor-Green", Name).unwrap(),
+        ("taylor_green", 2)
+    );
+    match gpm::scene::visit_scene("dam-break", Name) {
+        Err(gpm::error::InputError::Config { key, reason }) => {
+            assert_eq!(key, "scene");
+            assert!(reason.contains("cavity, taylor_green"), "{reason}");
+        }
+        other => panic!("{:?}", other.map(|_| ())),
+    }
+}
+
+/// An observer stops a run by returning `Break`, not an error: the run ends after that step and
+/// still reports its result.
+#[test]
+fn an_observer_stops_a_run_with_a_value() {
+    let cfg = TaylorGreenConfig::default().with(|c| c.n = 12);
+    let run = run_scene(
+        &cfg,
+        |_| {},
+        |rep, _| {
+            Ok(if rep.step == 3 {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        },
+    )
+    .unwrap();
+    assert_eq!(run.end, RunEnd::Observer { step: 3 });
+    assert_eq!(run.interrupted(), Some(3));
+    assert_eq!((run.result.steps, run.sim.steps), (3, 3));
+    assert!(run.result.t_end > 0.0 && run.result.t_end < cfg.t_end);
+    assert!(run.result.errors.l1_velocity_error.is_finite());
+    // run to the end: lands exactly on t_end (the last step is shortened)
+    let cfg = cfg.with(|c| c.t_end = 0.05);
+    let run = run_scene(&cfg, |_| {}, |_, _| Ok(ControlFlow::Continue(()))).unwrap();
+    assert_eq!(run.end, RunEnd::EndTime);
+    assert!(
+        (run.result.t_end - 0.05).abs() < 1e-15,
+        "{}",
+        run.result.t_end
     );
 }

@@ -146,12 +146,11 @@ fn advance_to_lands_with_a_fixed_step() {
 
 #[test]
 fn advance_to_lands_in_the_lagrangian_frame_with_shifting() {
-    let cfg = TaylorGreenConfig {
-        n: 16,
-        motion: Motion::Lagrangian,
-        shifting: Some(Shifting::default()),
-        ..Default::default()
-    };
+    let cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 16;
+        c.motion = Motion::Lagrangian;
+        c.shifting = Some(Shifting::default());
+    });
     let mut sim = taylor_green::build(&cfg).unwrap();
     assert_eq!(sim.params.motion, Motion::Lagrangian);
     let (dt, _) = sim.time_step();

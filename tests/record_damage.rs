@@ -15,10 +15,7 @@ use std::time::{Duration, Instant};
 /// Records `steps` cavity steps (flush every step) and returns the file size after the `/config`
 /// chunk and after each step: everything up to `ends[s]` is on disk once step `s` is written.
 fn record(path: &Path, steps: usize) -> (Vec<u64>, Vec<StepDiagnostics>) {
-    let cfg = CavityConfig {
-        n: 12,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| c.n = 12);
     let mut sim = cavity::build(&cfg).unwrap();
     let mut rec =
         Recorder::create(path, RecordLevel::Diagnostics, 10, &serde_json::json!({})).unwrap();

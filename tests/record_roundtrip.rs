@@ -27,12 +27,11 @@ struct Recorded {
 }
 
 fn cavity_config(motion: Motion) -> CavityConfig {
-    CavityConfig {
-        n: 12,
-        t_end: 10.0,
-        motion,
-        ..Default::default()
-    }
+    CavityConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 10.0;
+        c.motion = motion;
+    })
 }
 
 /// A small cavity run, recorded from our own loop (so that the projection capture is on).
@@ -288,11 +287,10 @@ fn periodic_projection_input_reruns() {
     // Taylor–Green: periodic box, no ghosts
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("tg.mcap");
-    let cfg = TaylorGreenConfig {
-        n: 12,
-        t_end: 1.0,
-        ..Default::default()
-    };
+    let cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 1.0;
+    });
     let mut sim = taylor_green::build(&cfg).unwrap();
     sim.projection.capture = true;
     let options = RecorderOptions {
@@ -324,7 +322,7 @@ fn missing_capture_is_reported() {
     let path = dir.path().join("nocap.mcap");
     let cfg = cavity_config(Motion::Eulerian);
     let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &serde_json::json!({})).unwrap();
-    cavity::run(&CavityConfig { t_end: 0.05, ..cfg }, |r, sim| {
+    cavity::run(&cfg.with(|c| c.t_end = 0.05), |r, sim| {
         Ok(rec.write_step(r, sim)?)
     })
     .unwrap();
@@ -356,11 +354,10 @@ fn overhead() {
         env("GPM_BENCH_REPS", 2),
     );
     let dir = tempfile::tempdir().unwrap();
-    let cfg = CavityConfig {
-        n,
-        t_end: 1e9,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = n;
+        c.t_end = 1e9;
+    });
     let configs: Vec<(&str, RecordLevel, u64, ChunkCompression)> = vec![
         ("none", RecordLevel::None, 1, ChunkCompression::Zstd),
         (

@@ -72,12 +72,11 @@ fn validate_file(path: &Path) -> (BTreeMap<String, usize>, Option<ProjectionInpu
 fn recorded_messages_validate() {
     let dir = tempfile::tempdir().unwrap();
     // cavity (walls, ghosts), Lagrangian so shifting and rebuilds show up
-    let cfg = CavityConfig {
-        n: 12,
-        t_end: 1.0,
-        motion: gpm::flow::Motion::Lagrangian,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 1.0;
+        c.motion = gpm::flow::Motion::Lagrangian;
+    });
     let path = dir.path().join("cavity.mcap");
     let mut sim = cavity::build(&cfg).unwrap();
     sim.projection.capture = true;
@@ -104,11 +103,10 @@ fn recorded_messages_validate() {
     ));
 
     // Taylor–Green (periodic box), through the scene's run and observer
-    let cfg = TaylorGreenConfig {
-        n: 12,
-        t_end: 0.02,
-        ..Default::default()
-    };
+    let cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 0.02;
+    });
     let path = dir.path().join("tg.mcap");
     let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &json!(null)).unwrap();
     taylor_green::run(&cfg, |r, sim| Ok(rec.write_step(r, sim)?)).unwrap();
@@ -193,10 +191,7 @@ fn every_variant_validates_and_round_trips() {
     // projection inputs: every boundary kind, every weight form, every scheme and solver
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("one.mcap");
-    let cfg = CavityConfig {
-        n: 8,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| c.n = 8);
     let mut sim = cavity::build(&cfg).unwrap();
     sim.projection.capture = true;
     let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &json!({})).unwrap();
@@ -308,11 +303,10 @@ fn write_interop_samples() {
         std::env::var_os("GPM_INTEROP_OUT").expect("set GPM_INTEROP_OUT to a directory"),
     );
     std::fs::create_dir_all(&dir).unwrap();
-    let cfg = CavityConfig {
-        n: 12,
-        t_end: 1.0,
-        ..Default::default()
-    };
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 1.0;
+    });
     let mut sim = cavity::build(&cfg).unwrap();
     sim.projection.capture = true;
     let mut rec = Recorder::create(
@@ -327,11 +321,10 @@ fn write_interop_samples() {
         rec.write_step(&r, &sim).unwrap();
     }
     rec.finish().unwrap();
-    let cfg = TaylorGreenConfig {
-        n: 12,
-        t_end: 0.3,
-        ..Default::default()
-    };
+    let cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 12;
+        c.t_end = 0.3;
+    });
     let options = gpm::record::RecorderOptions {
         compression: gpm::record::ChunkCompression::None,
         ..gpm::record::RecorderOptions::new(RecordLevel::Diagnostics, 10)

@@ -14,15 +14,16 @@
 //! (exit status 2).
 
 use anyhow::{bail, Context, Result};
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand};
 use gpm::flow::Motion;
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
-use gpm::record::{ChunkCompression, RecordError, RecordLevel, Recorder, RecorderOptions};
-use gpm::scene::{cavity, taylor_green};
+use gpm::record::{ChunkCompression, RecordLevel, RecorderOptions};
+use gpm::scene::{run_recorded, Scene, SceneConfig, SceneVisitor};
 use indicatif::{ProgressBar, ProgressStyle};
+use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -50,18 +51,25 @@ enum Command {
     Replay(ReplayArgs),
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-enum SceneName {
-    /// Lid-driven cavity (compared with Ghia et al. 1982).
-    Cavity,
-    /// Periodic Taylor–Green vortex (exact solution).
-    TaylorGreen,
+/// A registered scene's name (`gpm::scene::SCENES`; `-` and `_` are the same).
+fn scene_name(s: &str) -> Result<String, String> {
+    let name = s.trim().to_ascii_lowercase().replace('-', "_");
+    if gpm::scene::SCENES.contains(&name.as_str()) {
+        Ok(name)
+    } else {
+        Err(format!(
+            "unknown scene '{s}': expected one of {}",
+            gpm::scene::SCENES.join(", ").replace('_', "-")
+        ))
+    }
 }
 
 #[derive(Args, Debug)]
 struct RunArgs {
-    /// Scene.
-    scene: SceneName,
+    /// Scene: cavity (lid-driven, compared with Ghia et al. 1982) or taylor-green (periodic
+    /// vortex, exact solution).
+    #[arg(value_parser = scene_name)]
+    scene: String,
     /// Full scene configuration (JSON, unknown keys rejected); the flags below override it.
     /// A `/config` message's `{"scene", "config"}` object is accepted too.
     #[arg(long)]
@@ -196,13 +204,6 @@ fn progress_bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
 }
 
 fn run(a: RunArgs) -> Result<ExitCode> {
-    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let path = a.out.join("run.mcap");
-    let options = RecorderOptions {
-        flush_every: a.flush_every,
-        compression: a.compression,
-        ..RecorderOptions::new(a.record, a.record_every)
-    };
     // Ctrl-C: stop after the current step and finish the file; a second Ctrl-C exits at once
     // (the file then keeps every flushed step).
     let stop = Arc::new(AtomicBool::new(false));
@@ -217,118 +218,103 @@ fn run(a: RunArgs) -> Result<ExitCode> {
         })
         .context("installing the Ctrl-C handler")?;
     }
-    let bar_template = "{spinner} [{elapsed_precise}] [{bar:40}] {percent:>3}% {msg}";
-    let (scene, outcome, rec_result) = match a.scene {
-        SceneName::Cavity => {
-            let mut cfg: cavity::CavityConfig = match &a.config {
-                Some(p) => load_config(p, "cavity")?,
-                None => Default::default(),
-            };
-            override_opt(&mut cfg.re, a.re);
-            override_opt(&mut cfg.n, a.n);
-            override_opt(&mut cfg.t_end, a.t_end);
-            override_opt(&mut cfg.scheme, a.scheme);
-            override_opt(&mut cfg.gradient, a.gradient);
-            override_opt(&mut cfg.weight, a.weight);
-            override_opt(&mut cfg.h_over_dx, a.h_ratio);
-            override_opt(&mut cfg.motion, a.motion);
-            cfg.validate().context("invalid cavity configuration")?;
-            let config = serde_json::json!({ "scene": "cavity", "config": &cfg });
-            let mut rec = Recorder::create_with(&path, options, &config)?;
-            let pb = progress_bar(1000, a.quiet, bar_template);
-            let t_end = cfg.t_end;
-            let capture = a.record == RecordLevel::Full;
-            let r = cavity::run_with(
-                &cfg,
-                |sim| sim.projection.capture = capture,
-                |rep, sim| {
-                    rec.write_step(rep, sim)?;
-                    observe(&pb, rep, t_end, &stop)
-                },
-            );
-            pb.finish_and_clear();
-            let r = r.map(|(res, _)| serde_json::to_value(res).unwrap_or_default());
-            ("cavity", r, rec.finish())
-        }
-        SceneName::TaylorGreen => {
-            let mut cfg: taylor_green::TaylorGreenConfig = match &a.config {
-                Some(p) => load_config(p, "taylor_green")?,
-                None => Default::default(),
-            };
-            override_opt(&mut cfg.re, a.re);
-            override_opt(&mut cfg.n, a.n);
-            override_opt(&mut cfg.t_end, a.t_end);
-            override_opt(&mut cfg.scheme, a.scheme);
-            override_opt(&mut cfg.gradient, a.gradient);
-            override_opt(&mut cfg.weight, a.weight);
-            override_opt(&mut cfg.h_over_dx, a.h_ratio);
-            override_opt(&mut cfg.motion, a.motion);
-            cfg.validate()
-                .context("invalid taylor_green configuration")?;
-            let config = serde_json::json!({ "scene": "taylor_green", "config": &cfg });
-            let mut rec = Recorder::create_with(&path, options, &config)?;
-            let pb = progress_bar(1000, a.quiet, bar_template);
-            let t_end = cfg.t_end;
-            let capture = a.record == RecordLevel::Full;
-            let r = taylor_green::run_with(
-                &cfg,
-                |sim| sim.projection.capture = capture,
-                |rep, sim| {
-                    rec.write_step(rep, sim)?;
-                    observe(&pb, rep, t_end, &stop)
-                },
-            );
-            pb.finish_and_clear();
-            let r = r.map(|res| serde_json::to_value(res).unwrap_or_default());
-            ("taylor_green", r, rec.finish())
-        }
-    };
-    // the file is finished (or its error known) before the run's outcome is reported
-    let record = match rec_result {
-        Ok(s) => {
-            for note in &s.notes {
-                eprintln!("note: {note}");
-            }
-            Some(s)
-        }
-        Err(e) => {
-            eprintln!("error: finishing the recording failed: {e}");
-            None
-        }
-    };
-    match outcome {
-        Ok(result) => {
-            let out = serde_json::json!({ "scene": scene, "result": result, "record": record });
-            println!("{}", serde_json::to_string_pretty(&out)?);
-            Ok(if record.is_some() || a.record == RecordLevel::None {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            })
-        }
-        Err(gpm::Error::Record(RecordError::Interrupted { step })) => {
-            match &record {
-                Some(r) => eprintln!(
-                    "interrupted after step {step}; {} finished cleanly ({} steps, {} bytes)",
-                    path.display(),
-                    r.steps,
-                    r.bytes
-                ),
-                None => eprintln!("interrupted after step {step}"),
-            }
-            Ok(ExitCode::from(130))
-        }
-        Err(e) => {
-            if let Some(r) = &record {
-                if a.record != RecordLevel::None {
-                    eprintln!(
-                        "the recording of the {} steps before the failure is in {}",
-                        r.steps,
-                        path.display()
-                    );
+    let scene = a.scene.clone();
+    gpm::scene::visit_scene(&scene, RunScene { a, stop })?
+}
+
+/// `gpm run <scene>` for any registered scene.
+struct RunScene {
+    a: RunArgs,
+    stop: Arc<AtomicBool>,
+}
+
+impl SceneVisitor for RunScene {
+    type Output = Result<ExitCode>;
+
+    fn visit<const D: usize, S: Scene<D>>(self) -> Result<ExitCode> {
+        let RunScene { a, stop } = self;
+        let name = S::NAME;
+        let mut cfg: SceneConfig<S> = match &a.config {
+            Some(p) => load_config(p, name)?,
+            None => Default::default(),
+        };
+        override_opt(&mut cfg.re, a.re);
+        override_opt(&mut cfg.n, a.n);
+        override_opt(&mut cfg.t_end, a.t_end);
+        override_opt(&mut cfg.scheme, a.scheme);
+        override_opt(&mut cfg.gradient, a.gradient);
+        override_opt(&mut cfg.weight, a.weight);
+        override_opt(&mut cfg.h_over_dx, a.h_ratio);
+        override_opt(&mut cfg.motion, a.motion);
+        cfg.validate()
+            .with_context(|| format!("invalid {name} configuration"))?;
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+        let path = a.out.join("run.mcap");
+        let options = RecorderOptions {
+            flush_every: a.flush_every,
+            compression: a.compression,
+            ..RecorderOptions::new(a.record, a.record_every)
+        };
+        let bar_template = "{spinner} [{elapsed_precise}] [{bar:40}] {percent:>3}% {msg}";
+        let pb = progress_bar(1000, a.quiet, bar_template);
+        let t_end = cfg.t_end;
+        let done = run_recorded(
+            &cfg,
+            &path,
+            options,
+            &cfg.record_header(),
+            |_| {},
+            |rep, _| Ok(observe(&pb, rep, t_end, &stop)),
+        )?;
+        pb.finish_and_clear();
+        // the file is finished (or its error known) before the run's outcome is reported
+        let record = match done.record {
+            Ok(s) => {
+                for note in &s.notes {
+                    eprintln!("note: {note}");
                 }
+                Some(s)
             }
-            Err(anyhow::Error::new(e).context(format!("{scene} run failed")))
+            Err(e) => {
+                eprintln!("error: finishing the recording failed: {e}");
+                None
+            }
+        };
+        match done.run {
+            Ok(run) => {
+                if let Some(step) = run.interrupted() {
+                    match &record {
+                        Some(r) => eprintln!(
+                            "interrupted after step {step}; {} finished cleanly ({} steps, {} bytes)",
+                            path.display(),
+                            r.steps,
+                            r.bytes
+                        ),
+                        None => eprintln!("interrupted after step {step}"),
+                    }
+                    return Ok(ExitCode::from(130));
+                }
+                let out =
+                    serde_json::json!({ "scene": name, "result": run.result, "record": record });
+                println!("{}", serde_json::to_string_pretty(&out)?);
+                Ok(if record.is_some() || a.record == RecordLevel::None {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::FAILURE
+                })
+            }
+            Err(e) => {
+                if let Some(r) = &record {
+                    if a.record != RecordLevel::None {
+                        eprintln!(
+                            "the recording of the {} steps before the failure is in {}",
+                            r.steps,
+                            path.display()
+                        );
+                    }
+                }
+                Err(anyhow::Error::new(e).context(format!("{name} run failed")))
+            }
         }
     }
 }
@@ -339,12 +325,13 @@ fn override_opt<T>(slot: &mut T, v: Option<T>) {
     }
 }
 
+/// Progress, and the Ctrl-C request: stop after this step.
 fn observe(
     pb: &ProgressBar,
     rep: &gpm::flow::FlowReport,
     t_end: f64,
     stop: &AtomicBool,
-) -> gpm::Result<()> {
+) -> ControlFlow<()> {
     pb.set_position(((rep.time / t_end).clamp(0.0, 1.0) * 1000.0) as u64);
     if rep.step % 10 == 1 {
         pb.set_message(format!(
@@ -357,9 +344,10 @@ fn observe(
         ));
     }
     if stop.load(Ordering::SeqCst) {
-        return Err(RecordError::Interrupted { step: rep.step }.into());
+        ControlFlow::Break(())
+    } else {
+        ControlFlow::Continue(())
     }
-    Ok(())
 }
 
 fn replay(a: ReplayArgs) -> Result<ExitCode> {

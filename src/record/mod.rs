@@ -26,7 +26,7 @@
 //!
 //! let dir = tempfile::tempdir().unwrap();
 //! let path = dir.path().join("run.mcap");
-//! let cfg = CavityConfig { n: 12, t_end: 0.02, ..Default::default() };
+//! let cfg = CavityConfig::default().with(|c| { c.n = 12; c.t_end = 0.02; });
 //! let config = serde_json::json!({ "scene": "cavity", "config": &cfg });
 //! let mut rec = Recorder::create(&path, RecordLevel::Diagnostics, 10, &config)?;
 //! cavity::run(&cfg, |report, sim| Ok(rec.write_step(report, sim)?))?;

@@ -8,21 +8,16 @@
 //! `U² / L`). The reported profiles are the mean of the samples taken over the last
 //! `steady.average_window` time units (Lagrangian particles sample a steady field with noise).
 
+use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
-use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
-use crate::flow::{
-    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
-};
+use crate::flow::{FlowReport, Simulation};
 use crate::geometry::lattice;
-use crate::kernel::Weight;
-use crate::neighbors::NeighborConfig;
 use crate::particles::{Particles, Role};
-use crate::poisson::SolveParams;
-use crate::projection::{ProjectionParams, Scheme};
 use crate::reference::{ghia, rms_max};
 use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
+use std::ops::ControlFlow;
 use std::time::Instant;
 
 /// How steadiness is judged and profiles averaged.
@@ -50,40 +45,11 @@ impl Default for SteadyCriterion {
     }
 }
 
-/// Configuration of a cavity run (serialisable; unknown keys are rejected).
+/// The cavity's own configuration keys (beside the shared [`FlowConfig`]: `re`, `n`, `t_end`,
+/// …; defaults Re 100, n = 50, `t_end` = 40).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct CavityConfig {
-    /// Reynolds number `U L / ν`.
-    pub re: f64,
-    /// Fluid particles per side.
-    pub n: usize,
-    /// End time (the run may stop earlier when steady).
-    pub t_end: f64,
-    /// Influence radius over particle spacing.
-    pub h_over_dx: f64,
-    /// Neighbour skin over `h`.
-    pub skin_over_h: f64,
-    /// Reference weight.
-    pub weight: Weight,
-    /// Pressure-correction scheme.
-    pub scheme: Scheme,
-    /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
-    pub gradient: GradientKind,
-    /// Frame of the particles.
-    pub motion: Motion,
-    /// Integrator of the explicit terms.
-    pub integrator: Integrator,
-    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
-    pub viscous_theta: f64,
-    /// Particle shifting (Lagrangian).
-    pub shifting: Option<Shifting>,
-    /// Volumes.
-    pub volumes: VolumeRule,
-    /// Time-step limits.
-    pub limits: TimeStepLimits,
-    /// Linear solver.
-    pub solve: SolveParams,
+pub struct Cavity {
     /// Steadiness and averaging.
     pub steady: SteadyCriterion,
     /// Lid speed.
@@ -91,6 +57,15 @@ pub struct CavityConfig {
     /// Continuation of the Poisson source into the wall ghosts.
     pub source_ghosts: SourceGhosts,
 }
+
+super::config_fields!(Cavity {
+    steady,
+    lid,
+    source_ghosts
+});
+
+/// Configuration of a cavity run (serialisable as one flat object; unknown keys are rejected).
+pub type CavityConfig = SceneConfig<Cavity>;
 
 /// Serialisable choice of [`crate::boundary::VectorKind`] for the Poisson source.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -125,24 +100,9 @@ impl From<SourceGhosts> for crate::boundary::VectorKind {
     }
 }
 
-impl Default for CavityConfig {
+impl Default for Cavity {
     fn default() -> Self {
-        CavityConfig {
-            re: 100.0,
-            n: 50,
-            t_end: 40.0,
-            h_over_dx: 3.0,
-            skin_over_h: 0.3,
-            weight: Weight::WendlandC2,
-            scheme: Scheme::Rotational,
-            gradient: GradientKind::Difference,
-            motion: Motion::Eulerian,
-            integrator: Integrator::Ab2,
-            viscous_theta: 0.5,
-            shifting: Some(Shifting::default()),
-            volumes: VolumeRule::NumberDensity,
-            limits: TimeStepLimits::default(),
-            solve: SolveParams::default(),
+        Cavity {
             steady: SteadyCriterion::default(),
             lid: 1.0,
             source_ghosts: SourceGhosts::Mirror,
@@ -150,9 +110,17 @@ impl Default for CavityConfig {
     }
 }
 
-impl CavityConfig {
-    /// Checks every parameter and names the first bad one.
-    pub fn validate(&self) -> Result<(), InputError> {
+impl SceneParams for Cavity {
+    const NAME: &'static str = "cavity";
+
+    fn default_flow() -> FlowConfig {
+        FlowConfig {
+            t_end: 40.0,
+            ..FlowConfig::default()
+        }
+    }
+
+    fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
         let bad = |name: &'static str, value: f64, reason: &str| {
             Err(InputError::Parameter {
                 name: name.into(),
@@ -160,46 +128,8 @@ impl CavityConfig {
                 reason: reason.into(),
             })
         };
-        if !(self.re > 0.0 && self.re.is_finite()) {
-            return bad(
-                "re",
-                self.re,
-                "the Reynolds number must be positive and finite",
-            );
-        }
-        if self.n < 4 || self.n > 20_000 {
-            return bad(
-                "n",
-                self.n as f64,
-                "particles per side must be in 4..=20000",
-            );
-        }
-        if !(self.t_end > 0.0 && self.t_end.is_finite()) {
-            return bad(
-                "t_end",
-                self.t_end,
-                "the end time must be positive and finite",
-            );
-        }
-        if !(self.h_over_dx > 1.0 && self.h_over_dx <= 8.0) {
-            return bad(
-                "h_over_dx",
-                self.h_over_dx,
-                "h must exceed the particle spacing (h/dx > 1) and h/dx ≤ 8",
-            );
-        }
-        if !(self.skin_over_h >= 0.0 && self.skin_over_h <= 2.0) {
-            return bad(
-                "skin_over_h",
-                self.skin_over_h,
-                "the skin must be in [0, 2] h",
-            );
-        }
         if !(self.lid.is_finite() && self.lid != 0.0) {
             return bad("lid", self.lid, "the lid speed must be finite and non-zero");
-        }
-        if let Err(reason) = self.weight.validate() {
-            return bad("weight", f64::NAN, &reason);
         }
         let s = &self.steady;
         if !(s.interval > 0.0 && s.interval.is_finite()) {
@@ -215,16 +145,7 @@ impl CavityConfig {
                 "must be non-negative and finite",
             );
         }
-        if !(0.0..=1.0).contains(&self.viscous_theta) {
-            return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
-        }
-        self.limits.validate()?;
-        super::validate_common(&self.solve, self.shifting.as_ref())
-    }
-
-    /// Particle spacing `1/n`.
-    pub fn dx(&self) -> f64 {
-        1.0 / self.n as f64
+        Ok(())
     }
 }
 
@@ -236,31 +157,10 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
         p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
     }
-    let walls = Walls::cavity(1.0, cfg.lid);
-    let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
-    let mut projection = ProjectionParams::new(cfg.lid.abs() / cfg.re);
-    projection.scheme = cfg.scheme;
-    projection.gradient = cfg.gradient;
-    projection.viscous_theta = cfg.viscous_theta;
-    projection.source_ghosts = cfg.source_ghosts.into();
-    projection.solve = cfg.solve;
-    projection.allowed_floating = 1;
-    let mut limits = cfg.limits;
-    limits.u_ref = limits.u_ref.max(cfg.lid.abs());
-    let params = FlowParams {
-        projection,
-        limits,
-        motion: cfg.motion,
-        integrator: cfg.integrator,
-        shifting: if cfg.motion == Motion::Lagrangian {
-            cfg.shifting
-        } else {
-            None
-        },
-        volumes: cfg.volumes,
-        dx,
-    };
-    Simulation::new(p, walls, nc, params)
+    let walls = Walls::cavity(1.0, cfg.scene.lid);
+    let mut params = cfg.flow_params(cfg.scene.lid);
+    params.projection.source_ghosts = cfg.scene.source_ghosts.into();
+    Simulation::new(p, walls, cfg.neighbor_config(), params)
 }
 
 /// Sample positions along the centre lines: 101 evenly spaced points plus Ghia's.
@@ -313,7 +213,7 @@ pub struct GhiaErrors {
     pub max_v: f64,
 }
 
-/// The outcome of [`run`].
+/// The outcome of a cavity run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CavityResult {
     /// Reynolds number.
@@ -388,59 +288,81 @@ pub fn ghia_errors(re: u32, ys: &[f64], u: &[f64], xs: &[f64], v: &[f64]) -> Opt
     })
 }
 
-/// Runs a cavity to steadiness (or `t_end`); `observer` sees every step (for recording,
-/// progress) and may stop the run by returning an error.
+/// Runs a cavity to steadiness (or `t_end`) through [`run_scene`]; `observer` sees every step
+/// (for recording, checks) and cannot stop the run (use [`run_scene`] for that).
 pub fn run(
     cfg: &CavityConfig,
-    observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
-) -> Result<CavityResult, Error> {
-    run_full(cfg, observer).map(|(r, _)| r)
-}
-
-/// [`run`], also returning the final simulation state (for plots of the particles).
-pub fn run_full(
-    cfg: &CavityConfig,
-    observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
-) -> Result<(CavityResult, Simulation<2, Walls<2>>), Error> {
-    run_with(cfg, |_| {}, observer)
-}
-
-/// [`run_full`] with a `setup` hook that may adjust the simulation after it is built and before
-/// the first step (e.g. `sim.projection.capture = true` to record projection inputs).
-pub fn run_with(
-    cfg: &CavityConfig,
-    setup: impl FnOnce(&mut Simulation<2, Walls<2>>),
     mut observer: impl FnMut(&FlowReport, &Simulation<2, Walls<2>>) -> Result<(), Error>,
-) -> Result<(CavityResult, Simulation<2, Walls<2>>), Error> {
-    let start = Instant::now();
-    let mut sim = build(cfg)?;
-    setup(&mut sim);
-    let re_key = cfg.re.round() as u32;
-    let (ys, xs) = sample_positions(re_key);
-    let st = cfg.steady;
-    let mut samples: Vec<(f64, Vec<f64>, Vec<f64>)> = Vec::new();
-    let mut next_sample = st.interval;
-    let mut steady_time = None;
-    let mut rate = f64::INFINITY;
-    let mut res = CavityResult {
-        re: cfg.re,
-        n: cfg.n,
-        c0_min: f64::INFINITY,
-        ..Default::default()
-    };
-    while sim.time < cfg.t_end - 1e-12 {
-        let rep = sim.advance()?;
+) -> Result<CavityResult, Error> {
+    let run = run_scene(
+        cfg,
+        |_| {},
+        |rep, sim| {
+            observer(rep, sim)?;
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
+    Ok(run.result)
+}
+
+/// The cavity's observables during a run: the Theorem 4.5 ratio, c0 and divergence ratios
+/// (in the partial result) and the profile samples.
+pub struct CavityState {
+    ys: Vec<f64>,
+    xs: Vec<f64>,
+    samples: Vec<(f64, Vec<f64>, Vec<f64>)>,
+    next_sample: f64,
+    steady_time: Option<f64>,
+    rate: f64,
+    res: CavityResult,
+}
+
+impl Scene<2> for Cavity {
+    type Boundary = Walls<2>;
+    type State = CavityState;
+    type Result = CavityResult;
+    type Summary = CavitySummary;
+
+    fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
+        build(cfg)
+    }
+
+    fn start(cfg: &CavityConfig, _sim: &Simulation<2, Walls<2>>) -> CavityState {
+        let (ys, xs) = sample_positions(cfg.re.round() as u32);
+        CavityState {
+            ys,
+            xs,
+            samples: Vec::new(),
+            next_sample: cfg.scene.steady.interval,
+            steady_time: None,
+            rate: f64::INFINITY,
+            res: CavityResult {
+                re: cfg.re,
+                n: cfg.n,
+                c0_min: f64::INFINITY,
+                ..Default::default()
+            },
+        }
+    }
+
+    fn observe(
+        s: &mut CavityState,
+        cfg: &CavityConfig,
+        rep: &FlowReport,
+        sim: &Simulation<2, Walls<2>>,
+    ) -> ControlFlow<()> {
+        let st = cfg.scene.steady;
         let pr = &rep.projection;
+        let res = &mut s.res;
         res.max_stability_ratio = res.max_stability_ratio.max(pr.stability_ratio);
         res.c0_min = res.c0_min.min(pr.c0);
         res.c0_max = res.c0_max.max(pr.c0);
         if pr.div_before > 0.0 {
             res.max_div_ratio = res.max_div_ratio.max(pr.div_after / pr.div_before);
         }
-        observer(&rep, &sim)?;
-        if sim.time + 1e-12 >= next_sample {
-            let (u, v) = sample_profiles(&sim, &ys, &xs);
-            if let Some(last) = samples.last() {
+        if sim.time + 1e-12 >= s.next_sample {
+            let (u, v) = sample_profiles(sim, &s.ys, &s.xs);
+            if let Some(last) = s.samples.last() {
                 let dt = sim.time - last.0;
                 let du = u
                     .iter()
@@ -448,57 +370,113 @@ pub fn run_with(
                     .chain(v.iter().zip(&last.2))
                     .map(|(a, b)| (a - b).abs())
                     .fold(0.0, f64::max);
-                rate = du / dt;
-                if rate < st.tol && steady_time.is_none() {
-                    steady_time = Some(sim.time);
+                s.rate = du / dt;
+                if s.rate < st.tol && s.steady_time.is_none() {
+                    s.steady_time = Some(sim.time);
                 }
             }
-            samples.push((sim.time, u, v));
-            next_sample += st.interval;
-            if let Some(ts) = steady_time {
+            s.samples.push((sim.time, u, v));
+            s.next_sample += st.interval;
+            if let Some(ts) = s.steady_time {
                 if st.stop_when_steady && sim.time + 1e-12 >= ts + st.average_window {
-                    break;
+                    return ControlFlow::Break(());
                 }
             }
         }
+        ControlFlow::Continue(())
     }
-    if samples.is_empty() {
-        let (u, v) = sample_profiles(&sim, &ys, &xs);
-        samples.push((sim.time, u, v));
+
+    fn finish(
+        s: CavityState,
+        cfg: &CavityConfig,
+        sim: &Simulation<2, Walls<2>>,
+        started: Instant,
+    ) -> CavityResult {
+        let st = cfg.scene.steady;
+        let CavityState {
+            ys,
+            xs,
+            mut samples,
+            steady_time,
+            rate,
+            mut res,
+            ..
+        } = s;
+        if samples.is_empty() {
+            let (u, v) = sample_profiles(sim, &ys, &xs);
+            samples.push((sim.time, u, v));
+        }
+        // average the samples of the last window
+        let t_last = samples.last().map_or(sim.time, |s| s.0);
+        let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = samples
+            .iter()
+            .filter(|s| s.0 >= t_last - st.average_window - 1e-9)
+            .collect();
+        let m = window.len() as f64;
+        let u: Vec<f64> = (0..ys.len())
+            .map(|k| window.iter().map(|s| s.1[k]).sum::<f64>() / m)
+            .collect();
+        let v: Vec<f64> = (0..xs.len())
+            .map(|k| window.iter().map(|s| s.2[k]).sum::<f64>() / m)
+            .collect();
+        res.ghia = ghia_errors(cfg.re.round() as u32, &ys, &u, &xs, &v);
+        res.averaged_samples = window.len();
+        res.particles = sim.particles.n_fluid();
+        res.ghosts = sim.particles.len() - res.particles;
+        res.steps = sim.steps;
+        res.t_end = sim.time;
+        res.steady = steady_time.is_some();
+        res.steady_time = steady_time;
+        res.steady_rate = rate;
+        res.steady_rule = format!(
+            "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
+             profiles averaged over the last {} time units",
+            st.interval, st.tol, st.average_window
+        );
+        res.ys = ys;
+        res.u = u;
+        res.xs = xs;
+        res.v = v;
+        res.wall_seconds = started.elapsed().as_secs_f64();
+        res
     }
-    // average the samples of the last window
-    let t_last = samples.last().unwrap().0;
-    let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = samples
-        .iter()
-        .filter(|s| s.0 >= t_last - st.average_window - 1e-9)
-        .collect();
-    let m = window.len() as f64;
-    let u: Vec<f64> = (0..ys.len())
-        .map(|k| window.iter().map(|s| s.1[k]).sum::<f64>() / m)
-        .collect();
-    let v: Vec<f64> = (0..xs.len())
-        .map(|k| window.iter().map(|s| s.2[k]).sum::<f64>() / m)
-        .collect();
-    res.ghia = ghia_errors(re_key, &ys, &u, &xs, &v);
-    res.averaged_samples = window.len();
-    res.particles = sim.particles.n_fluid();
-    res.ghosts = sim.particles.len() - res.particles;
-    res.steps = sim.steps;
-    res.t_end = sim.time;
-    res.steady = steady_time.is_some();
-    res.steady_time = steady_time;
-    res.steady_rate = rate;
-    res.steady_rule = format!(
-        "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
-         profiles averaged over the last {} time units",
-        st.interval, st.tol, st.average_window
-    );
-    res.ys = ys;
-    res.u = u;
-    res.xs = xs;
-    res.v = v;
-    res.wall_seconds = start.elapsed().as_secs_f64();
-    Ok((res, sim))
+
+    fn summary(cfg: &CavityConfig, res: &CavityResult) -> CavitySummary {
+        CavitySummary::new(res, cfg)
+    }
+
+    /// `profile_u.csv` (`y,u` along x = 0.5) and `profile_v.csv` (`x,v` along y = 0.5).
+    fn tables(_cfg: &CavityConfig, res: &CavityResult) -> Vec<Table> {
+        use std::fmt::Write;
+        let mut u = String::from("y,u\n");
+        for (y, val) in res.ys.iter().zip(&res.u) {
+            let _ = writeln!(u, "{y:.6},{val:.8}");
+        }
+        let mut v = String::from("x,v\n");
+        for (x, val) in res.xs.iter().zip(&res.v) {
+            let _ = writeln!(v, "{x:.6},{val:.8}");
+        }
+        vec![
+            Table {
+                name: "profile_u.csv".into(),
+                text: u,
+            },
+            Table {
+                name: "profile_v.csv".into(),
+                text: v,
+            },
+        ]
+    }
+
+    #[cfg(feature = "cli")]
+    fn write_plots(
+        dir: &std::path::Path,
+        _cfg: &CavityConfig,
+        res: &CavityResult,
+        sim: &Simulation<2, Walls<2>>,
+    ) -> Result<(), crate::plot::PlotError> {
+        write_plots(dir, res, sim)
+    }
 }
 
 /// The flat summary written to `summary.json`.
@@ -569,34 +547,6 @@ impl CavitySummary {
             config: cfg.clone(),
         }
     }
-}
-
-/// Writes `profile_u.csv` (`y,u`), `profile_v.csv` (`x,v`) and `summary.json` into `dir`.
-pub fn write_tables(
-    dir: &std::path::Path,
-    res: &CavityResult,
-    cfg: &CavityConfig,
-) -> std::io::Result<()> {
-    use std::io::Write;
-    std::fs::create_dir_all(dir)?;
-    let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("profile_u.csv"))?);
-    writeln!(f, "y,u")?;
-    for (y, u) in res.ys.iter().zip(&res.u) {
-        writeln!(f, "{y:.6},{u:.8}")?;
-    }
-    f.flush()?;
-    let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("profile_v.csv"))?);
-    writeln!(f, "x,v")?;
-    for (x, v) in res.xs.iter().zip(&res.v) {
-        writeln!(f, "{x:.6},{v:.8}")?;
-    }
-    f.flush()?;
-    let summary = CavitySummary::new(res, cfg);
-    std::fs::write(
-        dir.join("summary.json"),
-        serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?,
-    )?;
-    Ok(())
 }
 
 /// Writes `profiles.png` (both centre-line profiles against Ghia et al.) and `particles.png`

@@ -1,10 +1,400 @@
-//! Ready-made scenes.
+//! Ready-made scenes, and the one generic path every scene runs through.
+//!
+//! A scene is a type implementing [`SceneParams`] (its own configuration keys, serde-readable)
+//! and [`Scene`] (how it builds a [`Simulation`], what it observes every step, what it reports
+//! at the end). Its full configuration is a [`SceneConfig`]: the keys every flow shares
+//! ([`FlowConfig`]: `re`, `n`, `t_end`, `limits`, `solve`, …) and the scene's own keys
+//! (`lid`, `steady`, `amplitude`, …), read and written as one flat JSON object.
+//!
+//! [`run_scene`] runs any scene: build, step until `t_end` or until the scene or the caller's
+//! observer returns [`ControlFlow::Break`], then summarise. [`run_recorded`] adds an MCAP
+//! recording (finished whatever happened). `gpm run <scene>` and the examples dispatch by name
+//! through [`visit_scene`]; **adding a scene** is one new file implementing the two traits plus
+//! one line in the `registry!` invocation at the end of this module.
+//!
+//! Library code writes no files on its own: [`SceneRun::write_tables`] and the plot writers
+//! (feature `cli`) write only where the caller asks.
 
 pub mod cavity;
+pub mod manufactured;
 pub mod taylor_green;
 
-use crate::error::InputError;
-use serde::de::DeserializeOwned;
+use crate::boundary::Boundary;
+use crate::consistent::GradientKind;
+use crate::error::{Error, InputError};
+use crate::flow::{
+    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
+};
+use crate::kernel::Weight;
+use crate::neighbors::NeighborConfig;
+use crate::poisson::SolveParams;
+use crate::projection::{ProjectionParams, Scheme};
+use crate::record::schema::ToBoundarySpec;
+use crate::record::{RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions};
+use serde::de::{DeserializeOwned, DeserializeSeed, MapAccess, Visitor};
+use serde::{Deserialize, Deserializer, Serialize};
+use std::fmt;
+use std::marker::PhantomData;
+use std::ops::{ControlFlow, Deref, DerefMut};
+use std::path::Path;
+use std::time::Instant;
+
+// ---------------------------------------------------------------------------------------------
+// configuration
+
+/// The configuration keys every flow scene shares (flattened into each [`SceneConfig`]).
+///
+/// The physical viscosity is `ν = U / Re` with the scene's velocity scale `U` (lid speed,
+/// vortex amplitude, …); the particle spacing is `Δx = 1/n` on the unit square.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlowConfig {
+    /// Reynolds number `U L / ν`.
+    pub re: f64,
+    /// Fluid particles per side.
+    pub n: usize,
+    /// End time (a scene may stop earlier, e.g. the cavity once steady).
+    pub t_end: f64,
+    /// Influence radius over particle spacing, `h/Δx`.
+    pub h_over_dx: f64,
+    /// Neighbour skin over `h`.
+    pub skin_over_h: f64,
+    /// Reference weight.
+    pub weight: Weight,
+    /// Pressure-correction scheme.
+    pub scheme: Scheme,
+    /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
+    pub gradient: GradientKind,
+    /// Frame of the particles.
+    pub motion: Motion,
+    /// Integrator of the explicit terms.
+    pub integrator: Integrator,
+    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
+    pub viscous_theta: f64,
+    /// Particle shifting (Lagrangian runs only).
+    pub shifting: Option<Shifting>,
+    /// Volumes.
+    pub volumes: VolumeRule,
+    /// Time-step limits.
+    pub limits: TimeStepLimits,
+    /// Linear solver.
+    pub solve: SolveParams,
+}
+
+impl Default for FlowConfig {
+    /// Re 100, n = 50, t_end = 1, h = 3Δx, Wendland C2, rotational scheme, Eulerian, AB2,
+    /// Crank–Nicolson viscosity, number-density volumes.
+    fn default() -> Self {
+        FlowConfig {
+            re: 100.0,
+            n: 50,
+            t_end: 1.0,
+            h_over_dx: 3.0,
+            skin_over_h: 0.3,
+            weight: Weight::WendlandC2,
+            scheme: Scheme::Rotational,
+            gradient: GradientKind::Difference,
+            motion: Motion::Eulerian,
+            integrator: Integrator::Ab2,
+            viscous_theta: 0.5,
+            shifting: Some(Shifting::default()),
+            volumes: VolumeRule::NumberDensity,
+            limits: TimeStepLimits::default(),
+            solve: SolveParams::default(),
+        }
+    }
+}
+
+impl FlowConfig {
+    /// Checks every shared parameter and names the first bad one; `min_n` is the scene's
+    /// smallest resolution.
+    pub fn validate(&self, min_n: usize) -> Result<(), InputError> {
+        let bad = |name: &'static str, value: f64, reason: &str| {
+            Err(InputError::Parameter {
+                name: name.into(),
+                value,
+                reason: reason.into(),
+            })
+        };
+        if !(self.re > 0.0 && self.re.is_finite()) {
+            return bad(
+                "re",
+                self.re,
+                "the Reynolds number must be positive and finite",
+            );
+        }
+        if self.n < min_n || self.n > 20_000 {
+            return bad(
+                "n",
+                self.n as f64,
+                &format!("particles per side must be in {min_n}..=20000"),
+            );
+        }
+        if !(self.t_end > 0.0 && self.t_end.is_finite()) {
+            return bad(
+                "t_end",
+                self.t_end,
+                "the end time must be positive and finite",
+            );
+        }
+        if !(self.h_over_dx > 1.0 && self.h_over_dx <= 8.0) {
+            return bad(
+                "h_over_dx",
+                self.h_over_dx,
+                "h must exceed the particle spacing (h/dx > 1) and h/dx ≤ 8",
+            );
+        }
+        if !(self.skin_over_h >= 0.0 && self.skin_over_h <= 2.0) {
+            return bad(
+                "skin_over_h",
+                self.skin_over_h,
+                "the skin must be in [0, 2] h",
+            );
+        }
+        if let Err(reason) = self.weight.validate() {
+            return bad("weight", f64::NAN, &reason);
+        }
+        if !(0.0..=1.0).contains(&self.viscous_theta) {
+            return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
+        }
+        self.limits.validate()?;
+        validate_common(&self.solve, self.shifting.as_ref())
+    }
+
+    /// Particle spacing `Δx = 1/n`.
+    pub fn dx(&self) -> f64 {
+        1.0 / self.n as f64
+    }
+
+    /// The neighbour configuration: `h = (h/Δx) Δx`, skin `(skin/h) h`.
+    pub fn neighbor_config<const D: usize>(&self) -> NeighborConfig<D> {
+        NeighborConfig::new_relative(self.weight, self.dx(), self.h_over_dx, self.skin_over_h)
+    }
+
+    /// The flow parameters for velocity scale `u_ref` (`ν = |u_ref| / Re`; the time-step
+    /// limits' `u_ref` is raised to `|u_ref|`; shifting only for Lagrangian runs; one floating
+    /// pressure mode allowed). The scene sets what is its own (e.g. the source ghosts).
+    pub fn flow_params<const D: usize>(&self, u_ref: f64) -> FlowParams<D> {
+        let mut projection = ProjectionParams::new(u_ref.abs() / self.re);
+        projection.scheme = self.scheme;
+        projection.gradient = self.gradient;
+        projection.viscous_theta = self.viscous_theta;
+        projection.solve = self.solve;
+        projection.allowed_floating = 1;
+        let mut limits = self.limits;
+        limits.u_ref = limits.u_ref.max(u_ref.abs());
+        FlowParams {
+            projection,
+            limits,
+            motion: self.motion,
+            integrator: self.integrator,
+            shifting: if self.motion == Motion::Lagrangian {
+                self.shifting
+            } else {
+                None
+            },
+            volumes: self.volumes,
+            dx: self.dx(),
+        }
+    }
+}
+
+/// A configuration struct read key by key, so that its keys can be merged with others into one
+/// flat JSON object while unknown keys are still rejected (serde's `flatten` cannot do both).
+pub trait ConfigFields: Sized {
+    /// The keys, in serialisation order.
+    const FIELDS: &'static [&'static str];
+    /// Reads the value of `key` from `map` into its field; `Ok(false)` when `key` is not one of
+    /// [`FIELDS`](Self::FIELDS).
+    fn read_field<'de, A: MapAccess<'de>>(
+        &mut self,
+        key: &str,
+        map: &mut A,
+    ) -> Result<bool, A::Error>;
+}
+
+/// Implements [`ConfigFields`] for a struct from the list of its fields.
+macro_rules! config_fields {
+    ($ty:ty { $($field:ident),* $(,)? }) => {
+        impl $crate::scene::ConfigFields for $ty {
+            const FIELDS: &'static [&'static str] = &[$(stringify!($field)),*];
+            fn read_field<'de, A: serde::de::MapAccess<'de>>(
+                &mut self,
+                key: &str,
+                map: &mut A,
+            ) -> Result<bool, A::Error> {
+                match key {
+                    $(stringify!($field) => self.$field = map.next_value()?,)*
+                    _ => return Ok(false),
+                }
+                Ok(true)
+            }
+        }
+    };
+}
+pub(crate) use config_fields;
+
+config_fields!(FlowConfig {
+    re,
+    n,
+    t_end,
+    h_over_dx,
+    skin_over_h,
+    weight,
+    scheme,
+    gradient,
+    motion,
+    integrator,
+    viscous_theta,
+    shifting,
+    volumes,
+    limits,
+    solve
+});
+
+/// A scene's own configuration keys (beside the shared [`FlowConfig`]); independent of the
+/// dimension.
+pub trait SceneParams: ConfigFields + Clone + fmt::Debug + PartialEq + Default + Serialize {
+    /// The scene's name in `gpm run <name>` and in a recording's `/config` (`snake_case`;
+    /// the command line also accepts `-` for `_`).
+    const NAME: &'static str;
+    /// Smallest number of particles per side.
+    const MIN_N: usize = 4;
+    /// The shared keys' defaults for this scene (e.g. its end time).
+    fn default_flow() -> FlowConfig;
+    /// Checks the scene's own keys, naming the first bad one (the shared keys are already
+    /// checked).
+    fn validate(&self, flow: &FlowConfig) -> Result<(), InputError>;
+}
+
+/// A scene's full configuration: the shared keys and the scene's own, one flat JSON object
+/// (unknown keys rejected, missing keys take the scene's defaults). Dereferences to the shared
+/// [`FlowConfig`], so `cfg.n` and `cfg.limits.cfl` read and write the shared keys.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SceneConfig<S> {
+    /// The keys every flow shares.
+    #[serde(flatten)]
+    pub flow: FlowConfig,
+    /// The scene's own keys.
+    #[serde(flatten)]
+    pub scene: S,
+}
+
+impl<S: SceneParams> Default for SceneConfig<S> {
+    fn default() -> Self {
+        SceneConfig {
+            flow: S::default_flow(),
+            scene: S::default(),
+        }
+    }
+}
+
+impl<S> Deref for SceneConfig<S> {
+    type Target = FlowConfig;
+    fn deref(&self) -> &FlowConfig {
+        &self.flow
+    }
+}
+
+impl<S> DerefMut for SceneConfig<S> {
+    fn deref_mut(&mut self) -> &mut FlowConfig {
+        &mut self.flow
+    }
+}
+
+impl<S: SceneParams> SceneConfig<S> {
+    /// Checks every parameter (shared keys first, then the scene's) and names the first bad
+    /// one.
+    pub fn validate(&self) -> Result<(), InputError> {
+        self.flow.validate(S::MIN_N)?;
+        self.scene.validate(&self.flow)
+    }
+
+    /// The `/config` message of a recording: `{"scene": NAME, "config": {…}}`, which
+    /// `gpm run <scene> --config FILE` reads back.
+    pub fn record_header(&self) -> serde_json::Value {
+        serde_json::json!({ "scene": S::NAME, "config": self })
+    }
+
+    /// The configuration changed by `f`: `CavityConfig::default().with(|c| c.n = 24)`.
+    pub fn with(mut self, f: impl FnOnce(&mut Self)) -> Self {
+        f(&mut self);
+        self
+    }
+
+    /// Every key, shared and the scene's own.
+    pub fn keys() -> impl Iterator<Item = &'static str> {
+        FlowConfig::FIELDS.iter().chain(S::FIELDS).copied()
+    }
+}
+
+impl<'de, S: SceneParams> Deserialize<'de> for SceneConfig<S> {
+    fn deserialize<De: Deserializer<'de>>(d: De) -> Result<Self, De::Error> {
+        d.deserialize_map(ConfigVisitor(PhantomData))
+    }
+}
+
+struct ConfigVisitor<S>(PhantomData<S>);
+
+impl<'de, S: SceneParams> Visitor<'de> for ConfigVisitor<S> {
+    type Value = SceneConfig<S>;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        write!(
+            f,
+            "a {} configuration (a JSON object of named keys)",
+            S::NAME
+        )
+    }
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut cfg = SceneConfig::<S>::default();
+        let mut seen: Vec<&'static str> = Vec::new();
+        while let Some(key) = map.next_key_seed(KeySeed::<S> {
+            seen: &seen,
+            scene: PhantomData,
+        })? {
+            seen.push(key);
+            if !cfg.flow.read_field(key, &mut map)? {
+                cfg.scene.read_field(key, &mut map)?;
+            }
+        }
+        Ok(cfg)
+    }
+}
+
+/// Reads a key and checks it against the known ones *while* reading it, so that an error
+/// names the key (`serde_path_to_error` records the key's path when its own deserialisation
+/// fails).
+struct KeySeed<'a, S> {
+    seen: &'a [&'static str],
+    scene: PhantomData<S>,
+}
+
+impl<'de, S: SceneParams> DeserializeSeed<'de> for KeySeed<'_, S> {
+    type Value = &'static str;
+    fn deserialize<De: Deserializer<'de>>(self, d: De) -> Result<&'static str, De::Error> {
+        d.deserialize_identifier(self)
+    }
+}
+
+impl<'de, S: SceneParams> Visitor<'de> for KeySeed<'_, S> {
+    type Value = &'static str;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a configuration key")
+    }
+    fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<&'static str, E> {
+        match SceneConfig::<S>::keys().find(|k| *k == v) {
+            Some(k) if self.seen.contains(&k) => Err(E::duplicate_field(k)),
+            Some(k) => Ok(k),
+            None => {
+                let expected: Vec<String> =
+                    SceneConfig::<S>::keys().map(|k| format!("`{k}`")).collect();
+                Err(E::custom(format_args!(
+                    "unknown field `{v}`, expected one of {}",
+                    expected.join(", ")
+                )))
+            }
+        }
+    }
+}
 
 /// Reads a scene configuration ([`cavity::CavityConfig`], [`taylor_green::TaylorGreenConfig`])
 /// from JSON text. Unknown keys and ill-typed values are rejected with an
@@ -111,4 +501,268 @@ pub(crate) fn validate_common(
         }
     }
     Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// the scene trait and the generic run
+
+/// A text table a scene produces at the end (e.g. `profile_u.csv`); the caller decides where
+/// it goes ([`SceneRun::write_tables`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Table {
+    /// File name (`profile_u.csv`).
+    pub name: String,
+    /// Contents (CSV text with a header line).
+    pub text: String,
+}
+
+/// A flow scene in `D` dimensions: how it is built from its configuration, what it observes
+/// every step, and what it reports at the end. [`run_scene`] drives it.
+pub trait Scene<const D: usize>: SceneParams {
+    /// The boundary of its simulation.
+    type Boundary: Boundary<D> + ToBoundarySpec<D>;
+    /// What the scene accumulates over the steps (observables, samples).
+    type State;
+    /// The outcome of a run (printed by `gpm run` as `result`).
+    type Result: Serialize + Clone + fmt::Debug;
+    /// The flat summary written to `summary.json`.
+    type Summary: Serialize;
+    /// Shorten the last step so that the run lands on `t_end` exactly (the cavity instead
+    /// stops at the first step past it).
+    const LAND_ON_T_END: bool = false;
+
+    /// Builds the simulation at `t = 0` (particles, boundary, parameters; ghosts, neighbours
+    /// and volumes set up). Validates the configuration first.
+    fn build(cfg: &SceneConfig<Self>) -> Result<Simulation<D, Self::Boundary>, Error>;
+    /// The observables' state before the first step.
+    fn start(cfg: &SceneConfig<Self>, sim: &Simulation<D, Self::Boundary>) -> Self::State;
+    /// Called after every step; [`ControlFlow::Break`] ends the run (e.g. the cavity once
+    /// steady and averaged).
+    fn observe(
+        state: &mut Self::State,
+        cfg: &SceneConfig<Self>,
+        report: &FlowReport,
+        sim: &Simulation<D, Self::Boundary>,
+    ) -> ControlFlow<()>;
+    /// The result at the end of the run; `started` is when the run began (before `build`),
+    /// for the wall-clock time.
+    fn finish(
+        state: Self::State,
+        cfg: &SceneConfig<Self>,
+        sim: &Simulation<D, Self::Boundary>,
+        started: Instant,
+    ) -> Self::Result;
+    /// The summary of a result (for `summary.json`).
+    fn summary(cfg: &SceneConfig<Self>, result: &Self::Result) -> Self::Summary;
+    /// The tables of a result (none by default).
+    fn tables(_cfg: &SceneConfig<Self>, _result: &Self::Result) -> Vec<Table> {
+        Vec::new()
+    }
+    /// Writes the scene's PNG plots into `dir` (none by default).
+    #[cfg(feature = "cli")]
+    fn write_plots(
+        _dir: &Path,
+        _cfg: &SceneConfig<Self>,
+        _result: &Self::Result,
+        _sim: &Simulation<D, Self::Boundary>,
+    ) -> Result<(), crate::plot::PlotError> {
+        Ok(())
+    }
+}
+
+/// How a run ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunEnd {
+    /// `t_end` reached.
+    EndTime,
+    /// The scene stopped it (e.g. the cavity, steady).
+    Scene,
+    /// The caller's observer stopped it after this step (e.g. Ctrl-C).
+    Observer {
+        /// Last step completed.
+        step: u64,
+    },
+}
+
+/// A finished run of scene `S`.
+pub struct SceneRun<const D: usize, S: Scene<D>> {
+    /// The scene's result.
+    pub result: S::Result,
+    /// The final state.
+    pub sim: Simulation<D, S::Boundary>,
+    /// How the run ended.
+    pub end: RunEnd,
+}
+
+impl<const D: usize, S: Scene<D>> SceneRun<D, S> {
+    /// Whether the caller's observer stopped the run.
+    pub fn interrupted(&self) -> Option<u64> {
+        match self.end {
+            RunEnd::Observer { step } => Some(step),
+            _ => None,
+        }
+    }
+
+    /// The summary (`summary.json`).
+    pub fn summary(&self, cfg: &SceneConfig<S>) -> S::Summary {
+        S::summary(cfg, &self.result)
+    }
+
+    /// Writes the scene's tables and `summary.json` (pretty JSON) into `dir` (created if
+    /// missing); returns the files written.
+    pub fn write_tables(
+        &self,
+        dir: &Path,
+        cfg: &SceneConfig<S>,
+    ) -> std::io::Result<Vec<std::path::PathBuf>> {
+        std::fs::create_dir_all(dir)?;
+        let mut written = Vec::new();
+        for t in S::tables(cfg, &self.result) {
+            let path = dir.join(&t.name);
+            std::fs::write(&path, t.text)?;
+            written.push(path);
+        }
+        let path = dir.join("summary.json");
+        let text =
+            serde_json::to_string_pretty(&self.summary(cfg)).map_err(std::io::Error::other)?;
+        std::fs::write(&path, text)?;
+        written.push(path);
+        Ok(written)
+    }
+
+    /// Writes the scene's plots into `dir`.
+    #[cfg(feature = "cli")]
+    pub fn write_plots(
+        &self,
+        dir: &Path,
+        cfg: &SceneConfig<S>,
+    ) -> Result<(), crate::plot::PlotError> {
+        S::write_plots(dir, cfg, &self.result, &self.sim)
+    }
+}
+
+/// What an observer returns: go on, or stop the run after this step (not an error: the run
+/// still finishes and reports its result, with [`RunEnd::Observer`]).
+pub type Observed = Result<ControlFlow<()>, Error>;
+
+/// Runs scene `S`: builds it, lets `setup` adjust the simulation before the first step (e.g.
+/// `sim.projection.capture = true`, a perturbation), then steps until `t_end` (landing on it
+/// exactly when [`Scene::LAND_ON_T_END`]), until the scene's [`Scene::observe`] or the
+/// caller's `observer` returns [`ControlFlow::Break`], or until an error. The scene observes a
+/// step before the caller's observer does.
+pub fn run_scene<const D: usize, S: Scene<D>>(
+    cfg: &SceneConfig<S>,
+    setup: impl FnOnce(&mut Simulation<D, S::Boundary>),
+    mut observer: impl FnMut(&FlowReport, &Simulation<D, S::Boundary>) -> Observed,
+) -> Result<SceneRun<D, S>, Error> {
+    let started = Instant::now();
+    let mut sim = S::build(cfg)?;
+    setup(&mut sim);
+    let mut state = S::start(cfg, &sim);
+    let mut end = RunEnd::EndTime;
+    while sim.time < cfg.t_end - 1e-12 {
+        let rep = if S::LAND_ON_T_END {
+            let (dt, _) = sim.time_step();
+            let remaining = cfg.t_end - sim.time;
+            if dt > remaining {
+                sim.params.limits.dt_fixed = Some(remaining);
+            }
+            let rep = sim.advance();
+            sim.params.limits.dt_fixed = cfg.limits.dt_fixed;
+            rep?
+        } else {
+            sim.advance()?
+        };
+        let scene = S::observe(&mut state, cfg, &rep, &sim);
+        if observer(&rep, &sim)?.is_break() {
+            end = RunEnd::Observer { step: rep.step };
+            break;
+        }
+        if scene.is_break() {
+            end = RunEnd::Scene;
+            break;
+        }
+    }
+    let result = S::finish(state, cfg, &sim, started);
+    Ok(SceneRun { result, sim, end })
+}
+
+/// A run with its recording: the run's outcome and the recording's, both known after the file
+/// was finished.
+pub struct RecordedRun<const D: usize, S: Scene<D>> {
+    /// The run (an error is the run's failure; every step before it is in the file).
+    pub run: Result<SceneRun<D, S>, Error>,
+    /// The finished recording.
+    pub record: Result<RecordSummary, RecordError>,
+}
+
+/// [`run_scene`] recording every step into `path` ([`Recorder`]; the `/config` message is
+/// `header`, usually [`SceneConfig::record_header`]). At [`RecordLevel::Full`] the projection
+/// inputs are captured. The file is finished whatever happened, so every step before a failure
+/// or a stop reads back. Fails only when the file cannot be created.
+pub fn run_recorded<const D: usize, S: Scene<D>>(
+    cfg: &SceneConfig<S>,
+    path: &Path,
+    options: RecorderOptions,
+    header: &serde_json::Value,
+    setup: impl FnOnce(&mut Simulation<D, S::Boundary>),
+    mut observer: impl FnMut(&FlowReport, &Simulation<D, S::Boundary>) -> Observed,
+) -> Result<RecordedRun<D, S>, RecordError> {
+    let capture = options.level == RecordLevel::Full;
+    let mut rec = Recorder::create_with(path, options, header)?;
+    let run = run_scene(
+        cfg,
+        |sim| {
+            sim.projection.capture = capture;
+            setup(sim)
+        },
+        |rep, sim| {
+            rec.write_step(rep, sim)?;
+            observer(rep, sim)
+        },
+    );
+    let record = rec.finish();
+    Ok(RecordedRun { run, record })
+}
+
+// ---------------------------------------------------------------------------------------------
+// registry
+
+/// Something done with a scene type chosen by name ([`visit_scene`]): `gpm run` reads, runs
+/// and records the scene the user named through one generic `visit`.
+pub trait SceneVisitor {
+    /// What the visit returns.
+    type Output;
+    /// Called with the named scene's type.
+    fn visit<const D: usize, S: Scene<D>>(self) -> Self::Output;
+}
+
+/// The registry: one line per scene (`dimension => type`).
+macro_rules! registry {
+    ($($d:literal => $scene:ty),* $(,)?) => {
+        /// The registered scenes' names.
+        pub const SCENES: &[&str] = &[$(<$scene as SceneParams>::NAME),*];
+
+        /// Calls `visitor` with the scene named `name` (`taylor-green` and `taylor_green` are
+        /// the same); an unknown name is a [`InputError::Config`] on the key `scene` listing
+        /// the known ones.
+        pub fn visit_scene<V: SceneVisitor>(name: &str, visitor: V) -> Result<V::Output, InputError> {
+            let name = name.trim().to_ascii_lowercase().replace('-', "_");
+            $(
+                if name == <$scene as SceneParams>::NAME {
+                    return Ok(visitor.visit::<$d, $scene>());
+                }
+            )*
+            Err(InputError::Config {
+                key: "scene".into(),
+                reason: format!("unknown scene '{name}': expected one of {}", SCENES.join(", ")),
+            })
+        }
+    };
+}
+
+registry! {
+    2 => cavity::Cavity,
+    2 => taylor_green::TaylorGreen,
 }

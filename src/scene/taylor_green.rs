@@ -4,80 +4,58 @@
 //! `u = −U e^{−8π²t/Re} cos 2πx sin 2πy`, `v = U e^{−8π²t/Re} sin 2πx cos 2πy`,
 //! `p = −ρU² e^{−16π²t/Re} (cos 4πx + cos 4πy)/4`.
 
+use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams};
 use crate::boundary::PeriodicBox;
-use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
-use crate::flow::{
-    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
-};
+use crate::flow::{FlowReport, Simulation};
 use crate::geometry::lattice;
-use crate::kernel::Weight;
-use crate::neighbors::{NeighborConfig, Periodicity};
+use crate::neighbors::Periodicity;
 use crate::particles::{Particles, Role};
-use crate::poisson::SolveParams;
-use crate::projection::{ProjectionParams, Scheme};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
+use std::ops::ControlFlow;
 use std::time::Instant;
 
-/// Configuration of a Taylor–Green run.
+/// The Taylor–Green vortex's own configuration key (beside the shared [`FlowConfig`];
+/// defaults Re 100, n = 50, `t_end` = 2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct TaylorGreenConfig {
-    /// Reynolds number `U L / ν` (L = 1).
-    pub re: f64,
-    /// Particles per side.
-    pub n: usize,
-    /// End time.
-    pub t_end: f64,
-    /// Influence radius over spacing.
-    pub h_over_dx: f64,
-    /// Neighbour skin over `h`.
-    pub skin_over_h: f64,
-    /// Reference weight.
-    pub weight: Weight,
-    /// Pressure scheme.
-    pub scheme: Scheme,
-    /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
-    pub gradient: GradientKind,
-    /// Frame.
-    pub motion: Motion,
-    /// Integrator of the explicit terms.
-    pub integrator: Integrator,
-    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
-    pub viscous_theta: f64,
-    /// Shifting (Lagrangian).
-    pub shifting: Option<Shifting>,
-    /// Volumes.
-    pub volumes: VolumeRule,
-    /// Time-step limits.
-    pub limits: TimeStepLimits,
-    /// Linear solver.
-    pub solve: SolveParams,
+pub struct TaylorGreen {
     /// Velocity amplitude `U`.
     pub amplitude: f64,
 }
 
-impl Default for TaylorGreenConfig {
+super::config_fields!(TaylorGreen { amplitude });
+
+impl Default for TaylorGreen {
     fn default() -> Self {
-        TaylorGreenConfig {
-            re: 100.0,
-            n: 50,
+        TaylorGreen { amplitude: 1.0 }
+    }
+}
+
+/// Configuration of a Taylor–Green run (one flat object; unknown keys are rejected).
+pub type TaylorGreenConfig = SceneConfig<TaylorGreen>;
+
+impl SceneParams for TaylorGreen {
+    const NAME: &'static str = "taylor_green";
+    const MIN_N: usize = 8;
+
+    fn default_flow() -> FlowConfig {
+        FlowConfig {
             t_end: 2.0,
-            h_over_dx: 3.0,
-            skin_over_h: 0.3,
-            weight: Weight::WendlandC2,
-            scheme: Scheme::Rotational,
-            gradient: GradientKind::Difference,
-            motion: Motion::Eulerian,
-            integrator: Integrator::Ab2,
-            viscous_theta: 0.5,
-            shifting: Some(Shifting::default()),
-            volumes: VolumeRule::NumberDensity,
-            limits: TimeStepLimits::default(),
-            solve: SolveParams::default(),
-            amplitude: 1.0,
+            ..FlowConfig::default()
         }
+    }
+
+    fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
+        if !(self.amplitude.is_finite() && self.amplitude != 0.0) {
+            return Err(InputError::Parameter {
+                name: "amplitude".into(),
+                value: self.amplitude,
+                reason: "must be finite and non-zero".into(),
+            });
+        }
+        Ok(())
     }
 }
 
@@ -91,96 +69,20 @@ pub fn exact(re: f64, amp: f64, x: &[f64; 2], t: f64) -> ([f64; 2], f64) {
     (u, p)
 }
 
-impl TaylorGreenConfig {
-    /// Checks the parameters, naming the first bad one.
-    pub fn validate(&self) -> Result<(), InputError> {
-        let bad = |name: &'static str, value: f64, reason: &str| {
-            Err(InputError::Parameter {
-                name: name.into(),
-                value,
-                reason: reason.into(),
-            })
-        };
-        if !(self.re > 0.0 && self.re.is_finite()) {
-            return bad(
-                "re",
-                self.re,
-                "the Reynolds number must be positive and finite",
-            );
-        }
-        if self.n < 8 || self.n > 20_000 {
-            return bad(
-                "n",
-                self.n as f64,
-                "particles per side must be in 8..=20000",
-            );
-        }
-        if !(self.t_end > 0.0 && self.t_end.is_finite()) {
-            return bad(
-                "t_end",
-                self.t_end,
-                "the end time must be positive and finite",
-            );
-        }
-        if !(self.h_over_dx > 1.0 && self.h_over_dx <= 8.0) {
-            return bad("h_over_dx", self.h_over_dx, "need 1 < h/dx ≤ 8");
-        }
-        if !(self.amplitude.is_finite() && self.amplitude != 0.0) {
-            return bad("amplitude", self.amplitude, "must be finite and non-zero");
-        }
-        if !(self.skin_over_h >= 0.0 && self.skin_over_h <= 2.0) {
-            return bad(
-                "skin_over_h",
-                self.skin_over_h,
-                "the skin must be in [0, 2] h",
-            );
-        }
-        if let Err(reason) = self.weight.validate() {
-            return bad("weight", f64::NAN, &reason);
-        }
-        if !(0.0..=1.0).contains(&self.viscous_theta) {
-            return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
-        }
-        self.limits.validate()?;
-        super::validate_common(&self.solve, self.shifting.as_ref())
-    }
-}
-
 /// Builds the simulation at `t = 0` with the exact fields.
 pub fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, Error> {
     cfg.validate()?;
     let dx = 1.0 / cfg.n as f64;
+    let amplitude = cfg.scene.amplitude;
     let mut p = Particles::<2>::new();
     for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
-        let (u, pr) = exact(cfg.re, cfg.amplitude, &x, 0.0);
+        let (u, pr) = exact(cfg.re, amplitude, &x, 0.0);
         p.push(x, u, pr, dx * dx, Role::Fluid);
     }
     let bc = PeriodicBox {
         periodic: Periodicity::all([0.0, 0.0], [1.0, 1.0]),
     };
-    let nc = NeighborConfig::new_relative(cfg.weight, dx, cfg.h_over_dx, cfg.skin_over_h);
-    let mut projection = ProjectionParams::new(cfg.amplitude.abs() / cfg.re);
-    projection.scheme = cfg.scheme;
-    projection.gradient = cfg.gradient;
-    projection.viscous_theta = cfg.viscous_theta;
-    projection.solve = cfg.solve;
-    projection.allowed_floating = 1;
-    let mut limits = cfg.limits;
-    limits.u_ref = limits.u_ref.max(cfg.amplitude.abs());
-    let params = FlowParams {
-        projection,
-        limits,
-        motion: cfg.motion,
-        integrator: cfg.integrator,
-        shifting: if cfg.motion == Motion::Lagrangian {
-            cfg.shifting
-        } else {
-            None
-        },
-        volumes: cfg.volumes,
-        dx,
-    };
-    Simulation::new(p, bc, nc, params)
+    Simulation::new(p, bc, cfg.neighbor_config(), cfg.flow_params(amplitude))
 }
 
 /// Errors against the exact solution.
@@ -229,7 +131,7 @@ pub fn errors(sim: &Simulation<2, PeriodicBox<2>>, re: f64, amp: f64) -> TaylorG
     }
 }
 
-/// The outcome of [`run`].
+/// The outcome of a Taylor–Green run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TaylorGreenResult {
     /// Reynolds number.
@@ -248,43 +150,102 @@ pub struct TaylorGreenResult {
     pub max_stability_ratio: f64,
 }
 
-/// Runs to `t_end` (the last step is shortened to land on it).
+/// Runs to `t_end` (the last step is shortened to land on it) through [`run_scene`];
+/// `observer` sees every step and cannot stop the run (use [`run_scene`] for that).
 pub fn run(
     cfg: &TaylorGreenConfig,
-    observer: impl FnMut(&FlowReport, &Simulation<2, PeriodicBox<2>>) -> Result<(), Error>,
-) -> Result<TaylorGreenResult, Error> {
-    run_with(cfg, |_| {}, observer)
-}
-
-/// [`run`] with a `setup` hook that may adjust the simulation after it is built and before the
-/// first step (e.g. `sim.projection.capture = true` to record projection inputs).
-pub fn run_with(
-    cfg: &TaylorGreenConfig,
-    setup: impl FnOnce(&mut Simulation<2, PeriodicBox<2>>),
     mut observer: impl FnMut(&FlowReport, &Simulation<2, PeriodicBox<2>>) -> Result<(), Error>,
 ) -> Result<TaylorGreenResult, Error> {
-    let start = Instant::now();
-    let mut sim = build(cfg)?;
-    setup(&mut sim);
-    let mut res = TaylorGreenResult {
-        re: cfg.re,
-        n: cfg.n,
-        ..Default::default()
-    };
-    while sim.time < cfg.t_end - 1e-12 {
-        let (dt, _) = sim.time_step();
-        let remaining = cfg.t_end - sim.time;
-        if dt > remaining {
-            sim.params.limits.dt_fixed = Some(remaining);
-        }
-        let rep = sim.advance()?;
-        sim.params.limits.dt_fixed = cfg.limits.dt_fixed;
-        res.max_stability_ratio = res.max_stability_ratio.max(rep.projection.stability_ratio);
-        observer(&rep, &sim)?;
+    let run = run_scene(
+        cfg,
+        |_| {},
+        |rep, sim| {
+            observer(rep, sim)?;
+            Ok(ControlFlow::Continue(()))
+        },
+    )?;
+    Ok(run.result)
+}
+
+/// The flat summary written to `summary.json`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TaylorGreenSummary {
+    /// Reynolds number.
+    pub re: f64,
+    /// Particles per side.
+    pub n: usize,
+    /// Steps.
+    pub steps: u64,
+    /// Final time.
+    pub t_end: f64,
+    /// Wall seconds.
+    pub wall_seconds: f64,
+    /// `Σ|u − u_ex| / Σ|u_ex|`.
+    pub l1_velocity_error: f64,
+    /// Relative error of the maximum speed against `U e^{−8π²t/Re}`.
+    pub linf_decay_error: f64,
+    /// Mean-free relative L1 pressure error.
+    pub l1_pressure_error: f64,
+    /// Largest Theorem 4.5 ratio.
+    pub max_stability_ratio: f64,
+    /// The configuration of the run.
+    pub config: TaylorGreenConfig,
+}
+
+impl Scene<2> for TaylorGreen {
+    type Boundary = PeriodicBox<2>;
+    type State = TaylorGreenResult;
+    type Result = TaylorGreenResult;
+    type Summary = TaylorGreenSummary;
+    const LAND_ON_T_END: bool = true;
+
+    fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, Error> {
+        build(cfg)
     }
-    res.steps = sim.steps;
-    res.t_end = sim.time;
-    res.errors = errors(&sim, cfg.re, cfg.amplitude);
-    res.wall_seconds = start.elapsed().as_secs_f64();
-    Ok(res)
+
+    fn start(cfg: &TaylorGreenConfig, _sim: &Simulation<2, PeriodicBox<2>>) -> TaylorGreenResult {
+        TaylorGreenResult {
+            re: cfg.re,
+            n: cfg.n,
+            ..Default::default()
+        }
+    }
+
+    fn observe(
+        res: &mut TaylorGreenResult,
+        _cfg: &TaylorGreenConfig,
+        rep: &FlowReport,
+        _sim: &Simulation<2, PeriodicBox<2>>,
+    ) -> ControlFlow<()> {
+        res.max_stability_ratio = res.max_stability_ratio.max(rep.projection.stability_ratio);
+        ControlFlow::Continue(())
+    }
+
+    fn finish(
+        mut res: TaylorGreenResult,
+        cfg: &TaylorGreenConfig,
+        sim: &Simulation<2, PeriodicBox<2>>,
+        started: Instant,
+    ) -> TaylorGreenResult {
+        res.steps = sim.steps;
+        res.t_end = sim.time;
+        res.errors = errors(sim, cfg.re, cfg.scene.amplitude);
+        res.wall_seconds = started.elapsed().as_secs_f64();
+        res
+    }
+
+    fn summary(cfg: &TaylorGreenConfig, res: &TaylorGreenResult) -> TaylorGreenSummary {
+        TaylorGreenSummary {
+            re: res.re,
+            n: res.n,
+            steps: res.steps,
+            t_end: res.t_end,
+            wall_seconds: res.wall_seconds,
+            l1_velocity_error: res.errors.l1_velocity_error,
+            linf_decay_error: res.errors.linf_decay_error,
+            l1_pressure_error: res.errors.l1_pressure_error,
+            max_stability_ratio: res.max_stability_ratio,
+            config: cfg.clone(),
+        }
+    }
 }
