@@ -102,9 +102,9 @@ pub fn moment_matrix<const D: usize>(nl: &NeighborList<D>, vol: &[f64], i: usize
     let d = D as f64;
     let mut m = [[0.0; D]; D];
     for k in nl.row(i) {
-        let j = nl.indices[k] as usize;
-        let c = d * vol[j] * nl.wr2[k];
-        let x = &nl.dx[k];
+        let j = nl.indices()[k] as usize;
+        let c = d * vol[j] * nl.wr2()[k];
+        let x = &nl.dx()[k];
         for a in 0..D {
             for b in 0..D {
                 m[a][b] += c * x[a] * x[b];
@@ -255,9 +255,9 @@ pub fn grad_renormalised_into<const D: usize>(
             let fi = phi[i];
             let mut s = [0.0; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let c = vol[j] * (phi[j] - fi) * nl.wr2[k];
-                let dx = &nl.dx[k];
+                let j = nl.indices()[k] as usize;
+                let c = vol[j] * (phi[j] - fi) * nl.wr2()[k];
+                let dx = &nl.dx()[k];
                 for a in 0..D {
                     s[a] += c * dx[a];
                 }
@@ -453,10 +453,10 @@ pub fn ls_gradient_laplacian<const D: usize>(
             let mut rhs = DVector::<f64>::zeros(m);
             let mut p = DVector::<f64>::zeros(m);
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let z: [f64; D] = std::array::from_fn(|c| nl.dx[k][c] * hinv);
+                let j = nl.indices()[k] as usize;
+                let z: [f64; D] = std::array::from_fn(|c| nl.dx()[k][c] * hinv);
                 quadratic_basis(&z, &mut p);
-                let w = vol[j] * nl.w[k];
+                let w = vol[j] * nl.w()[k];
                 a.ger(w, &p, &p, 1.0);
                 rhs.axpy(w * (phi[j] - phi[i]), &p, 1.0);
             }
@@ -509,12 +509,12 @@ pub fn ls_interpolate<const D: usize>(nl: &NeighborList<D>, vol: &[f64], phi: &[
             a[(0, 0)] += vol[i] * w0;
             rhs[0] += vol[i] * w0 * phi[i];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
+                let j = nl.indices()[k] as usize;
                 p[0] = 1.0;
                 for c in 0..D {
-                    p[c + 1] = nl.dx[k][c] * hinv;
+                    p[c + 1] = nl.dx()[k][c] * hinv;
                 }
-                let w = vol[j] * nl.w[k];
+                let w = vol[j] * nl.w()[k];
                 a.ger(w, &p, &p, 1.0);
                 rhs.axpy(w * phi[j], &p, 1.0);
             }
@@ -545,9 +545,9 @@ pub fn shepard_interpolate<const D: usize>(
         .map(|i| {
             let (mut s, mut n) = (vol[i] * w0 * phi[i], vol[i] * w0);
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                s += vol[j] * nl.w[k] * phi[j];
-                n += vol[j] * nl.w[k];
+                let j = nl.indices()[k] as usize;
+                s += vol[j] * nl.w()[k] * phi[j];
+                n += vol[j] * nl.w()[k];
             }
             s / n
         })
@@ -570,9 +570,9 @@ pub enum SphGradient {
 /// `∇_iW_ij ω_j` of pair `k`: `−w_h'(r) x_ji / r · ω_j`.
 #[inline]
 fn grad_w<const D: usize>(nl: &NeighborList<D>, vol: &[f64], k: usize, j: usize) -> [f64; D] {
-    let r = nl.r2[k].sqrt();
+    let r = nl.r2()[k].sqrt();
     let c = -nl.kernel().dw_h(r) / r * vol[j];
-    std::array::from_fn(|a| c * nl.dx[k][a])
+    std::array::from_fn(|a| c * nl.dx()[k][a])
 }
 
 /// A classical SPH gradient of `phi` at every particle.
@@ -588,7 +588,7 @@ pub fn sph_gradient<const D: usize>(
         .map(|i| {
             let mut s = [0.0; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
+                let j = nl.indices()[k] as usize;
                 let f = match form {
                     SphGradient::Standard => phi[j],
                     SphGradient::Difference => phi[j] - phi[i],
@@ -620,11 +620,11 @@ pub fn csph_gradient<const D: usize>(
             let mut s = [0.0; D];
             let mut m = [[0.0; D]; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
+                let j = nl.indices()[k] as usize;
                 let g = grad_w(nl, vol, k, j);
                 for a in 0..D {
                     s[a] += (phi[j] - phi[i]) * g[a];
-                    for (mab, xb) in m[a].iter_mut().zip(&nl.dx[k]) {
+                    for (mab, xb) in m[a].iter_mut().zip(&nl.dx()[k]) {
                         *mab += g[a] * xb;
                     }
                 }
@@ -652,8 +652,8 @@ pub fn sph_laplacian_brookshaw<const D: usize>(
         .map(|i| {
             let mut s = 0.0;
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let r = nl.r2[k].sqrt();
+                let j = nl.indices()[k] as usize;
+                let r = nl.r2()[k].sqrt();
                 s += vol[j] * (phi[j] - phi[i]) * kernel.dw_h(r) / r;
             }
             -2.0 * s

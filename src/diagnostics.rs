@@ -177,7 +177,7 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
             continue;
         }
         for k in nl.row(i) {
-            let j = nl.indices[k] as usize;
+            let j = nl.indices()[k] as usize;
             match alias(role, j) {
                 None => {
                     touches[i] = true;
@@ -240,7 +240,7 @@ pub fn shepard_sums<const D: usize>(nl: &NeighborList<D>, vol: &[f64]) -> Vec<f6
         .with_min_len(256)
         .map(|i| {
             nl.row(i)
-                .map(|k| vol[nl.indices[k] as usize] * nl.w[k])
+                .map(|k| vol[nl.indices()[k] as usize] * nl.w()[k])
                 .sum()
         })
         .collect()
@@ -261,7 +261,7 @@ pub fn semi_regularity<const D: usize>(
         .filter(|&i| region.contains(role[i]))
         .map(|i| {
             nl.row(i)
-                .map(|k| vol[nl.indices[k] as usize] * nl.w[k])
+                .map(|k| vol[nl.indices()[k] as usize] * nl.w()[k])
                 .sum::<f64>()
         })
         .reduce(|| 0.0, f64::max)
@@ -305,9 +305,9 @@ pub fn neighbor_stats<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Ne
         total += m;
         count += 1;
         for k in r {
-            if nl.r2[k] < best {
-                best = nl.r2[k];
-                s.closest_pair = Some((i, nl.indices[k] as usize));
+            if nl.r2()[k] < best {
+                best = nl.r2()[k];
+                s.closest_pair = Some((i, nl.indices()[k] as usize));
             }
         }
     }
@@ -366,9 +366,9 @@ pub fn norm_h01<const D: usize>(
             vol[i]
                 * nl.row(i)
                     .map(|k| {
-                        let j = nl.indices[k] as usize;
+                        let j = nl.indices()[k] as usize;
                         let df = phi[j] - fi;
-                        vol[j] * df * df * nl.wr2[k]
+                        vol[j] * df * df * nl.wr2()[k]
                     })
                     .sum::<f64>()
         })

@@ -50,7 +50,7 @@ pub fn number_density_volumes<const D: usize>(nl: &NeighborList<D>) -> Vec<f64> 
         .into_par_iter()
         .with_min_len(256)
         .map(|i| {
-            let s: f64 = nl.row(i).map(|k| nl.w[k]).sum();
+            let s: f64 = nl.row(i).map(|k| nl.w()[k]).sum();
             if s > 0.0 {
                 1.0 / s
             } else {

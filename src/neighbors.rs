@@ -174,18 +174,14 @@ pub struct NeighborUpdate {
 pub struct NeighborList<const D: usize> {
     config: NeighborConfig<D>,
     kernel: Kernel<D>,
-    /// Row `i` of the pair arrays is `offsets[i]..offsets[i + 1]`.
-    pub offsets: Vec<usize>,
-    /// Neighbour index `j` of each pair (ascending within a row).
-    pub indices: Vec<u32>,
-    /// `x_j − x_i` (minimum image).
-    pub dx: Vec<[f64; D]>,
-    /// `r_ij²`.
-    pub r2: Vec<f64>,
-    /// `w_h(r_ij)`.
-    pub w: Vec<f64>,
-    /// `w_h(r_ij) / r_ij²`: the factor every operator multiplies by.
-    pub wr2: Vec<f64>,
+    // The pair arrays are private: consumers cache values derived from them keyed on
+    // `epoch`/`generation`, which only `update` (and so only this module) may change.
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+    dx: Vec<[f64; D]>,
+    r2: Vec<f64>,
+    w: Vec<f64>,
+    wr2: Vec<f64>,
     cand_offsets: Vec<usize>,
     cand_indices: Vec<u32>,
     cand_r2: Vec<f64>,
@@ -277,6 +273,42 @@ impl<const D: usize> NeighborList<D> {
     /// Number of stored pairs (each unordered pair is stored twice).
     pub fn n_pairs(&self) -> usize {
         self.indices.len()
+    }
+    /// Row offsets: row `i` of the pair arrays is `offsets()[i]..offsets()[i + 1]`
+    /// ([`row`](Self::row)).
+    #[inline(always)]
+    pub fn offsets(&self) -> &[usize] {
+        &self.offsets
+    }
+    /// Neighbour index `j` of each pair (ascending within a row).
+    #[inline(always)]
+    pub fn indices(&self) -> &[u32] {
+        &self.indices
+    }
+    /// `x_j − x_i` of each pair (minimum image).
+    #[inline(always)]
+    pub fn dx(&self) -> &[[f64; D]] {
+        &self.dx
+    }
+    /// `r_ij²` of each pair.
+    #[inline(always)]
+    pub fn r2(&self) -> &[f64] {
+        &self.r2
+    }
+    /// `w_h(r_ij)` of each pair.
+    #[inline(always)]
+    pub fn w(&self) -> &[f64] {
+        &self.w
+    }
+    /// `w_h(r_ij) / r_ij²` of each pair: the factor every operator multiplies by.
+    #[inline(always)]
+    pub fn wr2(&self) -> &[f64] {
+        &self.wr2
+    }
+    /// The neighbour `j` of pair `k` (an index into the pair arrays, from [`row`](Self::row)).
+    #[inline(always)]
+    pub fn neighbor(&self, k: usize) -> usize {
+        self.indices[k] as usize
     }
     /// Row `i`'s pair range.
     #[inline(always)]

@@ -39,13 +39,13 @@ pub fn div_sum_into<const D: usize>(
             let pi = psi[i];
             let mut s = 0.0;
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let dx = &nl.dx[k];
+                let j = nl.indices()[k] as usize;
+                let dx = &nl.dx()[k];
                 let mut dot = 0.0;
                 for a in 0..D {
                     dot += (psi[j][a] + pi[a]) * dx[a];
                 }
-                s += vol[j] * dot * nl.wr2[k];
+                s += vol[j] * dot * nl.wr2()[k];
             }
             *o = d * s;
         });
@@ -67,13 +67,13 @@ pub fn div_diff_into<const D: usize>(
             let pi = psi[i];
             let mut s = 0.0;
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let dx = &nl.dx[k];
+                let j = nl.indices()[k] as usize;
+                let dx = &nl.dx()[k];
                 let mut dot = 0.0;
                 for a in 0..D {
                     dot += (psi[j][a] - pi[a]) * dx[a];
                 }
-                s += vol[j] * dot * nl.wr2[k];
+                s += vol[j] * dot * nl.wr2()[k];
             }
             *o = d * s;
         });
@@ -101,9 +101,9 @@ pub fn grad_diff_into<const D: usize>(
             let fi = phi[i];
             let mut s = [0.0; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let c = vol[j] * (phi[j] - fi) * nl.wr2[k];
-                let dx = &nl.dx[k];
+                let j = nl.indices()[k] as usize;
+                let c = vol[j] * (phi[j] - fi) * nl.wr2()[k];
+                let dx = &nl.dx()[k];
                 for a in 0..D {
                     s[a] += c * dx[a];
                 }
@@ -136,8 +136,8 @@ pub fn laplacian_into<const D: usize>(
             let fi = phi[i];
             let mut s = 0.0;
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                s += vol[j] * (phi[j] - fi) * nl.wr2[k];
+                let j = nl.indices()[k] as usize;
+                s += vol[j] * (phi[j] - fi) * nl.wr2()[k];
             }
             *o = c2d * s;
         });
@@ -165,8 +165,8 @@ pub fn laplacian_vec_into<const D: usize>(
             let ui = u[i];
             let mut s = [0.0; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let c = vol[j] * nl.wr2[k];
+                let j = nl.indices()[k] as usize;
+                let c = vol[j] * nl.wr2()[k];
                 for a in 0..D {
                     s[a] += c * (u[j][a] - ui[a]);
                 }
@@ -199,9 +199,9 @@ pub fn grad_vec_row<const D: usize>(
     let ui = u[i];
     let mut s = [[0.0; D]; D];
     for k in nl.row(i) {
-        let j = nl.indices[k] as usize;
-        let c = vol[j] * nl.wr2[k];
-        let dx = &nl.dx[k];
+        let j = nl.indices()[k] as usize;
+        let c = vol[j] * nl.wr2()[k];
+        let dx = &nl.dx()[k];
         for a in 0..D {
             let du = c * (u[j][a] - ui[a]);
             for b in 0..D {
@@ -245,8 +245,8 @@ pub fn interpolate_at_particles<const D: usize>(
         .map(|i| {
             let mut s = vol[i] * phi[i] * w0;
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                s += vol[j] * phi[j] * nl.w[k];
+                let j = nl.indices()[k] as usize;
+                s += vol[j] * phi[j] * nl.w()[k];
             }
             s
         })

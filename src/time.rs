@@ -306,7 +306,7 @@ pub fn viscous_eigen_bound<const D: usize>(p: &Particles<D>, nl: &NeighborList<D
         .map(|i| {
             c * nl
                 .row(i)
-                .map(|k| p.vol[nl.indices[k] as usize] * nl.wr2[k])
+                .map(|k| p.vol[nl.indices()[k] as usize] * nl.wr2()[k])
                 .sum::<f64>()
         })
         .reduce(|| 0.0, f64::max)

@@ -59,33 +59,33 @@ fn assert_same<const D: usize>(nl: &NeighborList<D>, want: &[Vec<Pair<D>>], what
     assert_eq!(nl.len(), want.len(), "{what}: rows");
     let h = nl.h();
     for (i, row) in want.iter().enumerate() {
-        let got: Vec<usize> = nl.row(i).map(|k| nl.indices[k] as usize).collect();
+        let got: Vec<usize> = nl.row(i).map(|k| nl.indices()[k] as usize).collect();
         let exp: Vec<usize> = row.iter().map(|p| p.j).collect();
         assert_eq!(got, exp, "{what}: neighbours of particle {i}");
         for (k, p) in nl.row(i).zip(row) {
             for a in 0..D {
                 assert!(
-                    (nl.dx[k][a] - p.dx[a]).abs() <= 4.0 * f64::EPSILON * h,
+                    (nl.dx()[k][a] - p.dx[a]).abs() <= 4.0 * f64::EPSILON * h,
                     "{what}: dx of pair ({i},{}) axis {a}: {} vs {}",
                     p.j,
-                    nl.dx[k][a],
+                    nl.dx()[k][a],
                     p.dx[a]
                 );
             }
             assert!(
-                (nl.r2[k] - p.r2).abs() <= 8.0 * f64::EPSILON * h * h,
+                (nl.r2()[k] - p.r2).abs() <= 8.0 * f64::EPSILON * h * h,
                 "{what}: r2"
             );
             assert!(
-                (nl.w[k] - p.w).abs() <= 1e-13 * p.w.abs().max(nl.kernel().w_h(0.0) * 1e-3),
+                (nl.w()[k] - p.w).abs() <= 1e-13 * p.w.abs().max(nl.kernel().w_h(0.0) * 1e-3),
                 "{what}: w of pair ({i},{}): {} vs {}",
                 p.j,
-                nl.w[k],
+                nl.w()[k],
                 p.w
             );
             let wr2 = p.w / p.r2;
             assert!(
-                (nl.wr2[k] - wr2).abs() <= 1e-12 * wr2.abs().max(1e-300),
+                (nl.wr2()[k] - wr2).abs() <= 1e-12 * wr2.abs().max(1e-300),
                 "{what}: wr2"
             );
         }
@@ -97,17 +97,17 @@ fn assert_same<const D: usize>(nl: &NeighborList<D>, want: &[Vec<Pair<D>>], what
 fn assert_symmetric<const D: usize>(nl: &NeighborList<D>) {
     for i in 0..nl.len() {
         for k in nl.row(i) {
-            let j = nl.indices[k] as usize;
+            let j = nl.indices()[k] as usize;
             let back = nl
                 .row(j)
-                .find(|&m| nl.indices[m] as usize == i)
+                .find(|&m| nl.indices()[m] as usize == i)
                 .unwrap_or_else(|| panic!("pair ({i},{j}) stored one way only"));
             for a in 0..D {
-                assert_eq!(nl.dx[back][a], -nl.dx[k][a]);
+                assert_eq!(nl.dx()[back][a], -nl.dx()[k][a]);
             }
-            assert_eq!(nl.r2[back], nl.r2[k]);
-            assert_eq!(nl.w[back], nl.w[k]);
-            assert_eq!(nl.wr2[back], nl.wr2[k]);
+            assert_eq!(nl.r2()[back], nl.r2()[k]);
+            assert_eq!(nl.w()[back], nl.w()[k]);
+            assert_eq!(nl.wr2()[back], nl.wr2()[k]);
         }
     }
 }
@@ -174,7 +174,7 @@ fn periodic_boxes_match_brute_force() {
     let crossing = (0..nl.len())
         .flat_map(|i| nl.row(i).map(move |k| (i, k)))
         .filter(|&(i, k)| {
-            let j = nl.indices[k] as usize;
+            let j = nl.indices()[k] as usize;
             (0..2).any(|a| (x[j][a] - x[i][a]).abs() > 0.5)
         })
         .count();
@@ -228,12 +228,12 @@ fn periodic_positions_outside_the_box_give_the_same_pairs() {
     let a = NeighborList::build(cfg, &x).unwrap();
     let b = NeighborList::build(cfg, &shifted).unwrap();
     assert_same(&b, &reference(&cfg, &shifted), "shifted by periods");
-    assert_eq!(a.offsets, b.offsets);
-    assert_eq!(a.indices, b.indices);
+    assert_eq!(a.offsets(), b.offsets());
+    assert_eq!(a.indices(), b.indices());
     for k in 0..a.n_pairs() {
         for c in 0..2 {
             // equal up to the round-off of coordinates of size ≤ 5
-            assert!((a.dx[k][c] - b.dx[k][c]).abs() < 1e-14);
+            assert!((a.dx()[k][c] - b.dx()[k][c]).abs() < 1e-14);
         }
     }
 }
@@ -258,7 +258,7 @@ fn pairs_exactly_at_h_are_excluded_and_just_inside_included() {
             NeighborList::build(cfg, &x2).unwrap(),
             NeighborList::brute_force(cfg, &x2).unwrap(),
         ] {
-            let row = |i: usize| -> Vec<u32> { nl.row(i).map(|k| nl.indices[k]).collect() };
+            let row = |i: usize| -> Vec<u32> { nl.row(i).map(|k| nl.indices()[k]).collect() };
             assert_eq!(row(0), vec![2], "skin {skin}");
             assert_eq!(row(1), Vec::<u32>::new());
             assert_eq!(row(2), vec![0]);
@@ -267,7 +267,7 @@ fn pairs_exactly_at_h_are_excluded_and_just_inside_included() {
             assert_eq!(row(6), vec![5]);
             // the included pair at h(1 − 1e-9) has a tiny but positive weight
             let k = nl.row(0).next().unwrap();
-            assert!(nl.w[k] > 0.0);
+            assert!(nl.w()[k] > 0.0);
         }
     }
     let h3d = 7.0 / 8.0;
@@ -278,7 +278,7 @@ fn pairs_exactly_at_h_are_excluded_and_just_inside_included() {
     ];
     let cfg = NeighborConfig::new(Weight::CubicSpline, h3d, 0.0);
     let nl = NeighborList::build(cfg, &x3).unwrap();
-    let row0: Vec<u32> = nl.row(0).map(|k| nl.indices[k]).collect();
+    let row0: Vec<u32> = nl.row(0).map(|k| nl.indices()[k]).collect();
     assert_eq!(row0, vec![2]);
     assert_eq!(nl.row(1).len(), 0);
 
@@ -292,12 +292,12 @@ fn pairs_exactly_at_h_are_excluded_and_just_inside_included() {
     ] {
         assert_eq!(nl.row(0).len(), 0, "pair at exactly h across the face");
         assert_eq!(nl.row(1).len(), 1, "1 sees only 2");
-        assert_eq!(nl.indices[nl.row(1).start], 2);
+        assert_eq!(nl.indices()[nl.row(1).start], 2);
     }
     let xq: Vec<[f64; 2]> = vec![[0.125, 0.5], [0.875 + 1e-9, 0.5]];
     let nl = NeighborList::build(cfg, &xq).unwrap();
     assert_eq!(nl.row(0).len(), 1, "pair just inside h across the face");
-    assert!((nl.dx[nl.row(0).start][0] + (0.25 - 1e-9)).abs() < 1e-15);
+    assert!((nl.dx()[nl.row(0).start][0] + (0.25 - 1e-9)).abs() < 1e-15);
 }
 
 #[test]

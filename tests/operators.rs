@@ -232,7 +232,7 @@ fn exactness<const D: usize>(spec: Spec, number_density: bool) {
     // p = 2 for the Laplacian), times the size of the values whose differences are taken
     let moment = |i: usize, p: i32| -> f64 {
         f.nl.row(i)
-            .map(|q| f.vol[f.nl.indices[q] as usize] * f.nl.w[q] / f.nl.r2[q].sqrt().powi(p))
+            .map(|q| f.vol[f.nl.indices()[q] as usize] * f.nl.w()[q] / f.nl.r2()[q].sqrt().powi(p))
             .sum::<f64>()
             * 2.0
             * D as f64
@@ -532,7 +532,7 @@ fn into_twins_equal_allocating_versions() {
         for i in 0..n {
             let sc = f.vol[i].max(1.0)
                 * 1e-12
-                * f.nl.row(i).map(|k| f.nl.wr2[k]).sum::<f64>()
+                * f.nl.row(i).map(|k| f.nl.wr2()[k]).sum::<f64>()
                 * f.vol.iter().cloned().fold(0.0, f64::max)
                 / f.vol[i].max(1.0);
             assert!((lapv[i][a] - l[i]).abs() <= sc, "laplacian_vec row {i}");
@@ -547,7 +547,7 @@ fn into_twins_equal_allocating_versions() {
     for i in 0..n {
         let tr = gv[i][0][0] + gv[i][1][1];
         let sc = 1e-12
-            * f.nl.row(i).map(|k| f.nl.wr2[k]).sum::<f64>()
+            * f.nl.row(i).map(|k| f.nl.wr2()[k]).sum::<f64>()
             * f.vol.iter().cloned().fold(0.0, f64::max)
             * f.spec.h();
         assert!((dd[i] - tr).abs() <= sc, "div_diff = tr grad_vec at {i}");

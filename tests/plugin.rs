@@ -261,7 +261,7 @@ fn a_stale_neighbour_list_is_detected() {
     // the first row holding a pair with the moved particle
     let mut first = k;
     for i in 0..p.len() {
-        if nl.row(i).any(|q| nl.indices[q] as usize == k) {
+        if nl.row(i).any(|q| nl.indices()[q] as usize == k) {
             first = first.min(i);
             break;
         }

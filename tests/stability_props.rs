@@ -555,7 +555,7 @@ fn check_connectivity<const D: usize>(f: &Fam<D>) -> Result<(bool, usize), TestC
     let mut from_nl = BTreeSet::new();
     for i in 0..f.nl.len() {
         for k in f.nl.row(i) {
-            let j = f.nl.indices[k] as usize;
+            let j = f.nl.indices()[k] as usize;
             from_nl.insert((i.min(j), i.max(j)));
         }
     }
@@ -746,9 +746,9 @@ fn check_theory<const D: usize>(f: &Fam<D>) -> Result<Option<f64>, TestCaseError
                 * f.nl
                     .row(i)
                     .map(|k| {
-                        let j = f.nl.indices[k] as usize;
+                        let j = f.nl.indices()[k] as usize;
                         let m: f64 = (0..D).map(|q| (psi[j][q] + psi[i][q]).abs()).sum();
-                        D as f64 * f.vol[j] * m * f.nl.wr2[k] * f.nl.r2[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
                     })
                     .sum::<f64>()
                 * phi[i].abs()
@@ -789,9 +789,9 @@ fn check_theory<const D: usize>(f: &Fam<D>) -> Result<Option<f64>, TestCaseError
             let row: f64 =
                 f.nl.row(i)
                     .map(|k| {
-                        let j = f.nl.indices[k] as usize;
+                        let j = f.nl.indices()[k] as usize;
                         let m: f64 = (0..D).map(|q| (psi[j][q] + psi[i][q]).abs()).sum();
-                        D as f64 * f.vol[j] * m * f.nl.wr2[k] * f.nl.r2[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
                     })
                     .sum();
             (f.vol[i] * row).powi(2)

@@ -441,11 +441,11 @@ fn theorem_4_5<const D: usize>(
             let t: f64 =
                 f.nl.row(i)
                     .map(|k| {
-                        let j = f.nl.indices[k] as usize;
+                        let j = f.nl.indices()[k] as usize;
                         let m = (0..D)
                             .map(|a| (field[j][a] + field[i][a]).abs())
                             .sum::<f64>();
-                        D as f64 * f.vol[j] * m * f.nl.wr2[k] * f.nl.r2[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
                     })
                     .sum();
             t * t

@@ -107,11 +107,11 @@ pub(crate) fn shift<const D: usize, B: Boundary<D>>(
             }
             let mut gc = [0.0; D];
             for k in nl.row(i) {
-                let j = nl.indices[k] as usize;
-                let r = nl.r2[k].sqrt();
+                let j = nl.indices()[k] as usize;
+                let r = nl.r2()[k].sqrt();
                 let c = -p.vol[j] * kernel.dw_h(r) / r;
                 for a in 0..D {
-                    gc[a] += c * nl.dx[k][a];
+                    gc[a] += c * nl.dx()[k][a];
                 }
             }
             let speed = if sh.global_speed {

@@ -224,10 +224,10 @@ impl Assembly {
                 let row = &cols[offsets[u]..offsets[u + 1]];
                 let mut dsum = 0.0;
                 for k in nl.row(p) {
-                    let j = nl.indices[k] as usize;
+                    let j = nl.indices()[k] as usize;
                     let s = alias(role, j);
                     let sg = sigma.map(|sg| sg[j]).unwrap_or(1.0);
-                    let a = c * two_d * vol[p] * vol[j] * nl.wr2[k];
+                    let a = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
                     if s == Some(p) {
                         // own image: (σ u_p + b − u_p)
                         dsum += a * (1.0 - sg);

@@ -84,14 +84,14 @@ impl HelmholtzSolver {
         for (uix, &p) in a.particle.iter().enumerate() {
             let p = p as usize;
             for k in nl.row(p) {
-                let j = nl.indices[k] as usize;
+                let j = nl.indices()[k] as usize;
                 let is_const = match role[j] {
                     Role::Ghost { .. } => true,
                     Role::Dirichlet => true,
                     Role::Fluid => false,
                 };
                 if is_const {
-                    let w = c * two_d * vol[p] * vol[j] * nl.wr2[k];
+                    let w = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
                     for d in 0..D {
                         rhs_const[uix][d] += w * consts[j][d];
                     }

@@ -167,15 +167,15 @@ pub fn check_neighbors<const D: usize>(
     }
     let bad = (0..x.len()).into_par_iter().find_first(|&i| {
         nl.row(i).any(|k| {
-            let j = nl.indices[k] as usize;
+            let j = nl.indices()[k] as usize;
             let mut d: [f64; D] = std::array::from_fn(|a| x[j][a] - x[i][a]);
             per.min_image(&mut d);
-            d != nl.dx[k]
+            d != nl.dx()[k]
         })
     });
     if let Some(i) = bad {
         let k = nl.row(i).start;
-        let j = nl.indices[k] as usize;
+        let j = nl.indices()[k] as usize;
         return Err(InputError::StaleNeighbors {
             particle: i,
             reason: format!(
