@@ -159,6 +159,26 @@ pub(crate) fn alias(role: &[Role], j: usize) -> Option<usize> {
 
 /// Components of the fluid graph (edges: pairs with `r < h`, ghosts standing for their sources),
 /// anchored when some member has a Dirichlet neighbour. Exact per Definition 3.1.
+///
+/// ```
+/// use gpm::diagnostics::connectivity;
+/// use gpm::kernel::Weight;
+/// use gpm::neighbors::{NeighborConfig, NeighborList};
+/// use gpm::particles::Role;
+///
+/// // a row of fluid particles 0.1 apart ending in a Dirichlet particle, and a far particle
+/// let x = vec![[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.3, 0.0], [5.0, 5.0]];
+/// let role = vec![Role::Fluid, Role::Fluid, Role::Fluid, Role::Dirichlet, Role::Fluid];
+/// let nl = NeighborList::build(NeighborConfig::new(Weight::WendlandC2, 0.15, 0.0), &x)?;
+/// let c = connectivity(&nl, &role);
+/// let s = c.summary();
+/// assert_eq!((s.components, s.anchored, s.floating, s.isolated), (2, 1, 1, 1));
+/// assert_eq!(c.isolated, vec![4]);
+/// // h-connectivity (Def. 3.1) fails: the error names the particle without a path to the band
+/// let err = c.check(0).unwrap_err();
+/// assert!(err.to_string().contains('4'));
+/// # Ok::<(), gpm::error::InputError>(())
+/// ```
 pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Components {
     let n = nl.len();
     let mut parent: Vec<u32> = (0..n as u32).collect();

@@ -16,13 +16,7 @@
 //! `‖φ‖_h01 / (√(d c0) ‖f‖_ℓ2)`, which the theory bounds by 1.
 //!
 //! ```
-//! use gpm::boundary::Walls;
-//! use gpm::geometry::{lattice, number_density_volumes};
-//! use gpm::kernel::Weight;
-//! use gpm::neighbors::{NeighborConfig, NeighborList};
-//! use gpm::particles::{Particles, Role};
-//! use gpm::projection::{ProjectionParams, ProjectionStep};
-//! use gpm::boundary::Boundary;
+//! use gpm::prelude::*;
 //!
 //! // a lid-driven cavity at rest: 20 × 20 particles, walls by mirror ghosts
 //! let dx = 1.0 / 20.0;
@@ -32,10 +26,8 @@
 //! }
 //! let walls = Walls::<2>::cavity(1.0, 1.0); // lid y = 1 moving at speed 1
 //! let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0);
-//! walls.make_ghosts(&mut p, config.h);
-//! let nl = NeighborList::build(config, &p.x)?;
-//! p.vol = number_density_volumes(&nl);
-//! walls.place_ghosts(&mut p); // ghosts take their source's volume
+//! // ghosts → neighbour list → volumes ω_i = 1/Σw → ghost placement, in that order
+//! let nl = prepare(&mut p, &walls, config, VolumeRule::NumberDensity)?;
 //!
 //! // one projection step at Re = 100
 //! let params = ProjectionParams::<2>::new(0.01);
@@ -80,3 +72,22 @@ pub mod setup;
 pub mod time;
 
 pub use error::{Error, Result};
+
+/// The types a particle code plugging in the projection needs, in one import:
+/// `use gpm::prelude::*;`.
+pub mod prelude {
+    pub use crate::boundary::{Boundary, NoBoundary, PeriodicBox, Wall, Walls};
+    pub use crate::consistent::GradientKind;
+    pub use crate::diagnostics::{connectivity, semi_regularity, Components, Region};
+    pub use crate::error::{Error, InputError, Result};
+    pub use crate::geometry::{lattice, number_density_volumes};
+    pub use crate::kernel::Weight;
+    pub use crate::neighbors::{NeighborConfig, NeighborList, Periodicity};
+    pub use crate::particles::{Particles, Role};
+    pub use crate::poisson::{SolveParams, SolverKind};
+    pub use crate::projection::{
+        Prediction, ProjectionParams, ProjectionStep, Scheme, SourceKind, StepReport,
+    };
+    pub use crate::record::{RecordLevel, Recorder, StepContext, StepRecord};
+    pub use crate::setup::{prepare, update, VolumeRule};
+}

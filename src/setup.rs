@@ -16,11 +16,21 @@
 
 use crate::boundary::Boundary;
 use crate::error::Error;
-pub use crate::flow::VolumeRule;
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{NeighborConfig, NeighborList};
 use crate::particles::Particles;
 use crate::projection::checks::check_spacing;
+
+/// How particle volumes are set.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumeRule {
+    /// `ω_i = 1 / Σ_{j≠i} w_h(r_ij)`, recomputed every step (MISSION §2's consistency fix).
+    #[default]
+    NumberDensity,
+    /// Kept as given.
+    Fixed,
+}
 
 /// Ghosts, neighbour list, volumes and ghost placement for `particles` (fluid and Dirichlet
 /// particles; any ghosts present are dropped and made again). The list takes its periodicity

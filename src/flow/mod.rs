@@ -58,16 +58,7 @@ impl std::str::FromStr for Motion {
     }
 }
 
-/// How particle volumes are set.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum VolumeRule {
-    /// `ω_i = 1 / Σ_{j≠i} w_h(r_ij)`, recomputed every step (MISSION §2's consistency fix).
-    #[default]
-    NumberDensity,
-    /// Kept as given.
-    Fixed,
-}
+pub use crate::setup::VolumeRule;
 
 /// Everything the flow solver needs besides the particles and the boundary.
 #[derive(Clone, Copy, Debug, PartialEq)]

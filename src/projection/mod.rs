@@ -223,20 +223,7 @@ impl<const D: usize> ProjectionParams<D> {
         if let Some(g) = self.gravity.iter().find(|g| !g.is_finite()) {
             return bad("gravity", *g, "the body force must be finite");
         }
-        if !(self.solve.rel_tol >= 0.0) {
-            return bad(
-                "solve.rel_tol",
-                self.solve.rel_tol,
-                "the relative tolerance must be non-negative",
-            );
-        }
-        if !(self.solve.abs_tol >= 0.0) {
-            return bad(
-                "solve.abs_tol",
-                self.solve.abs_tol,
-                "the absolute tolerance must be non-negative",
-            );
-        }
+        self.solve.validate()?;
         if self.source == SourceKind::AdjointBt && self.gradient != GradientKind::Renormalised {
             return Err(InputError::Config {
                 key: "source".into(),

@@ -157,7 +157,11 @@ impl FlowConfig {
             return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
         }
         self.limits.validate()?;
-        validate_common(&self.solve, self.shifting.as_ref())
+        self.solve.validate()?;
+        match &self.shifting {
+            Some(s) => s.validate(),
+            None => Ok(()),
+        }
     }
 
     /// Particle spacing `Δx = 1/n`.
@@ -458,51 +462,6 @@ fn config_error(e: serde_path_to_error::Error<serde_json::Error>) -> InputError 
     }
 }
 
-/// Checks shared by the scene configurations: the linear-solver tolerances and iteration limit
-/// and the shifting parameters, naming the first bad one.
-pub(crate) fn validate_common(
-    solve: &crate::poisson::SolveParams,
-    shifting: Option<&crate::flow::Shifting>,
-) -> Result<(), InputError> {
-    let bad = |name: &'static str, value: f64, reason: &str| {
-        Err(InputError::Parameter {
-            name: name.into(),
-            value,
-            reason: reason.into(),
-        })
-    };
-    if !(solve.rel_tol >= 0.0 && solve.rel_tol.is_finite()) {
-        return bad(
-            "solve.rel_tol",
-            solve.rel_tol,
-            "must be non-negative and finite",
-        );
-    }
-    if !(solve.abs_tol >= 0.0 && solve.abs_tol.is_finite()) {
-        return bad(
-            "solve.abs_tol",
-            solve.abs_tol,
-            "must be non-negative and finite",
-        );
-    }
-    if solve.max_iters == 0 {
-        return bad("solve.max_iters", 0.0, "at least one iteration is needed");
-    }
-    if let Some(s) = shifting {
-        if !(s.coefficient >= 0.0 && s.coefficient.is_finite()) {
-            return bad(
-                "shifting.coefficient",
-                s.coefficient,
-                "must be non-negative and finite",
-            );
-        }
-        if !(s.max_fraction >= 0.0 && s.max_fraction <= 1.0) {
-            return bad("shifting.max_fraction", s.max_fraction, "must be in [0, 1]");
-        }
-    }
-    Ok(())
-}
-
 // ---------------------------------------------------------------------------------------------
 // the scene trait and the generic run
 
@@ -663,14 +622,7 @@ pub fn run_scene<const D: usize, S: Scene<D>>(
     let mut end = RunEnd::EndTime;
     while sim.time < cfg.t_end - 1e-12 {
         let rep = if S::LAND_ON_T_END {
-            let (dt, _) = sim.time_step();
-            let remaining = cfg.t_end - sim.time;
-            if dt > remaining {
-                sim.params.limits.dt_fixed = Some(remaining);
-            }
-            let rep = sim.advance();
-            sim.params.limits.dt_fixed = cfg.limits.dt_fixed;
-            rep?
+            sim.advance_toward(cfg.t_end)?
         } else {
             sim.advance()?
         };
