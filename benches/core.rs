@@ -14,13 +14,11 @@
 //! differences.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use gpm::diagnostics::connectivity;
-use gpm::geometry::{inside, lattice, number_density_volumes};
-use gpm::kernel::Weight;
 use gpm::neighbors::{NeighborConfig, NeighborList};
 use gpm::particles::Role;
 use gpm::poisson::iterative::pcg;
 use gpm::poisson::{Assembly, Direct};
+use gpm::scene::manufactured::{BandProblem, BandSpec};
 use std::time::Duration;
 
 struct Problem<const D: usize> {
@@ -31,31 +29,17 @@ struct Problem<const D: usize> {
     role: Vec<Role>,
 }
 
+/// The manufactured Dirichlet-band problem of the library (`scene::manufactured`): the unit box
+/// with a band of thickness ≥ h, h = 3Δx, number-density volumes.
 fn problem<const D: usize>(side: usize) -> Problem<D> {
-    let dx = 1.0 / side as f64;
-    let h = 3.0 * dx;
-    let band = 4.0 * dx;
-    let x = lattice([-band; D], [1.0 + band; D], dx);
-    let role: Vec<Role> = x
-        .iter()
-        .map(|p| {
-            if inside(p, &[0.0; D], &[1.0; D]) {
-                Role::Fluid
-            } else {
-                Role::Dirichlet
-            }
-        })
-        .collect();
-    let config = NeighborConfig::new(Weight::WendlandC2, h, 0.0);
-    let nl = NeighborList::build(config, &x).expect("finite lattice");
-    let vol = number_density_volumes(&nl);
-    assert!(connectivity(&nl, &role).is_h_connected());
+    let b = BandProblem::<D>::build(&BandSpec::new(side, 3.0)).expect("finite lattice");
+    assert!(b.comps.is_h_connected());
     Problem {
-        x,
-        config,
-        nl,
-        vol,
-        role,
+        config: *b.nl.config(),
+        x: b.x,
+        nl: b.nl,
+        vol: b.vol,
+        role: b.role,
     }
 }
 

@@ -154,7 +154,8 @@ impl StagePlan {
         has_dirichlet: bool,
         params: &FlowParams<D>,
     ) -> Self {
-        let pr = &params.projection;
+        // the projection's own stages are decided once, by its plan
+        let pr = crate::projection::ProjectionPlan::new(&params.projection);
         let lagrangian = params.motion == Motion::Lagrangian;
         let mut s = Vec::new();
         let mut add = |c: bool, st: Stage| {
@@ -167,28 +168,14 @@ impl StagePlan {
         add(has_dirichlet, Stage::DirichletBand);
         add(params.volumes == VolumeRule::NumberDensity, Stage::Volumes);
         add(!lagrangian, Stage::Convection);
-        add(
-            pr.nu > 0.0 && pr.viscous_theta < 1.0,
-            Stage::ViscousExplicit,
-        );
-        add(pr.gravity.iter().any(|&g| g != 0.0), Stage::BodyForce);
-        add(
-            pr.scheme != crate::projection::Scheme::NonIncremental,
-            Stage::PressureGradient,
-        );
-        add(
-            pr.nu > 0.0 && pr.viscous_theta > 0.0,
-            Stage::ViscousImplicit,
-        );
+        add(pr.viscous_explicit, Stage::ViscousExplicit);
+        add(pr.body_force, Stage::BodyForce);
+        add(pr.pressure_gradient, Stage::PressureGradient);
+        add(pr.viscous_implicit, Stage::ViscousImplicit);
         add(lagrangian, Stage::Advection);
         add(lagrangian, Stage::MovingNeighbors);
         add(true, Stage::Projection);
-        add(
-            pr.scheme == crate::projection::Scheme::Rotational
-                && pr.nu > 0.0
-                && pr.viscous_theta > 0.0,
-            Stage::RotationalCorrection,
-        );
+        add(pr.rotational, Stage::RotationalCorrection);
         add(lagrangian && params.shifting.is_some(), Stage::Shifting);
         StagePlan { stages: s }
     }

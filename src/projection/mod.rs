@@ -240,8 +240,8 @@ impl<const D: usize> ProjectionParams<D> {
 
 /// Which stages of the projection run, decided once from the parameters (MISSION §4: a step
 /// skips every stage it does not need). [`ProjectionStep::predict`] and
-/// [`ProjectionStep::project`] follow it; [`crate::flow::StagePlan`] lists the same decisions
-/// among the flow's stages.
+/// [`ProjectionStep::project`] follow it, and [`crate::flow::StagePlan`] takes the projection's
+/// stages from it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ProjectionPlan {
     /// `(1−θ) ν Δh uⁿ` in the predictor (`ν > 0`, `θ < 1`).
