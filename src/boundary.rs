@@ -205,6 +205,29 @@ impl<const D: usize> Walls<D> {
         }
     }
 
+    /// The images of a point at `x`: one mask (bit `k` = wall `k`) per non-empty subset of the
+    /// walls closer than `reach` whose axes are distinct, with the walls of the subset.
+    fn image_masks(&self, x: &[f64; D], reach: f64) -> Vec<(u8, Vec<usize>)> {
+        let near: Vec<usize> = (0..self.walls.len())
+            .filter(|&k| self.walls[k].distance(x) < reach)
+            .collect();
+        let mut out = Vec::new();
+        for subset in 1u32..(1 << near.len()) {
+            let ks: Vec<usize> = (0..near.len())
+                .filter(|b| subset & (1 << b) != 0)
+                .map(|b| near[b])
+                .collect();
+            let mut axes: Vec<usize> = ks.iter().map(|&k| self.walls[k].axis).collect();
+            axes.sort_unstable();
+            axes.dedup();
+            if axes.len() == ks.len() {
+                let mask = ks.iter().fold(0u8, |m, &k| m | (1 << k));
+                out.push((mask, ks));
+            }
+        }
+        out
+    }
+
     fn mirror_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
         let mut y = *v;
         for (k, w) in self.walls.iter().enumerate() {
@@ -293,22 +316,7 @@ impl<const D: usize> Boundary<D> for Walls<D> {
                 continue;
             }
             let x = p.x[i];
-            let near: Vec<usize> = (0..nw)
-                .filter(|&k| self.walls[k].distance(&x) < reach)
-                .collect();
-            // every non-empty subset of the near walls with distinct axes
-            for subset in 1u32..(1 << near.len()) {
-                let ks: Vec<usize> = (0..near.len())
-                    .filter(|b| subset & (1 << b) != 0)
-                    .map(|b| near[b])
-                    .collect();
-                let mut axes: Vec<usize> = ks.iter().map(|&k| self.walls[k].axis).collect();
-                axes.sort_unstable();
-                axes.dedup();
-                if axes.len() != ks.len() {
-                    continue;
-                }
-                let mask: u8 = ks.iter().fold(0u8, |m, &k| m | (1 << k));
+            for (mask, _) in self.image_masks(&x, reach) {
                 let y = self.image(&x, mask);
                 let u = self.velocity_image(&p.u[i], mask);
                 let (pi, vi) = (p.p[i], p.vol[i]);
@@ -366,27 +374,12 @@ impl<const D: usize> Boundary<D> for Walls<D> {
             }
             present.insert((source, walls));
         }
-        let nw = self.walls.len();
         for i in 0..first {
             if !p.role[i].is_fluid() {
                 continue;
             }
             let x = p.x[i];
-            let near: Vec<usize> = (0..nw)
-                .filter(|&k| self.walls[k].distance(&x) < h)
-                .collect();
-            for subset in 1u32..(1 << near.len()) {
-                let ks: Vec<usize> = (0..near.len())
-                    .filter(|b| subset & (1 << b) != 0)
-                    .map(|b| near[b])
-                    .collect();
-                let mut axes: Vec<usize> = ks.iter().map(|&k| self.walls[k].axis).collect();
-                axes.sort_unstable();
-                axes.dedup();
-                if axes.len() != ks.len() {
-                    continue;
-                }
-                let mask: u8 = ks.iter().fold(0u8, |m, &k| m | (1 << k));
+            for (mask, ks) in self.image_masks(&x, h) {
                 if !present.contains(&(i as u32, mask)) {
                     let distance = ks
                         .iter()
