@@ -230,6 +230,12 @@ fn run(a: Args) -> Result<ExitCode> {
     } else {
         println!("no Ghia table for Re = {} (tables: 100, 1000)", res.re);
     }
+    if let Some(g) = res.reference {
+        println!(
+            "error vs the extrapolated reference:          u RMS {:.4} max {:.4} | v RMS {:.4} max {:.4}",
+            g.rms_u, g.max_u, g.rms_v, g.max_v
+        );
+    }
     if a.record != RecordLevel::None {
         println!(
             "recorded {} steps into {} ({} bytes); inspect with `cargo run --release --bin gpm -- replay {}`",

@@ -3,9 +3,9 @@
 //! positions on Ghia's 129-point grid, and no value that breaks the smoothness of its profile
 //! (the check that would have caught PySPH's Re = 3200 entry `−0.86636`).
 
-use gpm::reference::{ghia, parse_two_columns, rms_max, GhiaTable, GHIA_RE};
+use gpm::reference::{ghia, parse_two_columns, rms_max, CentrelineTable, GHIA_RE};
 
-fn tables() -> Vec<GhiaTable> {
+fn tables() -> Vec<CentrelineTable> {
     GHIA_RE
         .iter()
         .map(|&re| ghia(re).expect("embedded table"))
@@ -219,4 +219,37 @@ fn parser_reports_bad_lines() {
     let missing = "x,v\n1.0\n";
     let e = parse_two_columns(missing).unwrap_err();
     assert!(e.contains("line 2") && e.contains("missing"), "{e}");
+}
+
+/// The extrapolated reference sits at Ghia's printed positions, carries the same wall values, and
+/// Ghia's interior values differ from it by the RMS amounts its source note states
+/// (Re 100: 0.25 % u, 0.51 % v; Re 1000: 0.37 % u, 1.0 % v, to the printed two digits).
+#[test]
+fn extrapolated_reference_matches_its_source_note() {
+    use gpm::reference::extrapolated;
+    let stated = [(100, 0.0025, 0.0051), (1000, 0.0037, 0.010)];
+    for (re, su, sv) in stated {
+        let g = ghia(re).unwrap();
+        let e = extrapolated(re).expect("embedded extrapolated table");
+        for (a, b) in [
+            (&g.u_vertical, &e.u_vertical),
+            (&g.v_horizontal, &e.v_horizontal),
+        ] {
+            assert_eq!(a.len(), b.len());
+            for (p, q) in a.iter().zip(b.iter()) {
+                assert_eq!(p.0, q.0, "Re {re}: positions differ");
+                if p.0 == 0.0 || p.0 == 1.0 {
+                    assert_eq!(p.1, q.1, "Re {re}: wall value at {}", p.0);
+                }
+            }
+        }
+        let gu: Vec<f64> = g.u_vertical.iter().map(|p| p.1).collect();
+        let gv: Vec<f64> = g.v_horizontal.iter().map(|p| p.1).collect();
+        let (ru, _) = rms_max(&e.u_vertical, &gu);
+        let (rv, _) = rms_max(&e.v_horizontal, &gv);
+        // the note rounds to two significant digits
+        assert!((ru - su).abs() < 0.06 * su, "Re {re}: u RMS {ru}");
+        assert!((rv - sv).abs() < 0.06 * sv, "Re {re}: v RMS {rv}");
+    }
+    assert!(extrapolated(400).is_none());
 }

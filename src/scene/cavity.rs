@@ -14,7 +14,7 @@ use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
 use crate::geometry::lattice;
 use crate::particles::{Particles, Role};
-use crate::reference::{ghia, rms_max};
+use crate::reference::{extrapolated, ghia, rms_max, CentrelineTable};
 use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
@@ -200,16 +200,17 @@ pub fn sample_profiles(
     (u, v)
 }
 
-/// Errors against Ghia et al. in units of the lid speed (interior points only).
+/// Errors of the centre-line profiles against a reference table (Ghia et al. or the
+/// extrapolated reference), in units of the lid speed, interior points only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct GhiaErrors {
-    /// RMS of `u − u_Ghia` along `x = 0.5`.
+pub struct ProfileErrors {
+    /// RMS of `u − u_ref` along `x = 0.5`.
     pub rms_u: f64,
-    /// Max of `|u − u_Ghia|`.
+    /// Max of `|u − u_ref|`.
     pub max_u: f64,
-    /// RMS of `v − v_Ghia` along `y = 0.5`.
+    /// RMS of `v − v_ref` along `y = 0.5`.
     pub rms_v: f64,
-    /// Max of `|v − v_Ghia|`.
+    /// Max of `|v − v_ref|`.
     pub max_v: f64,
 }
 
@@ -249,7 +250,10 @@ pub struct CavityResult {
     /// Averaged `v(x, 0.5)`.
     pub v: Vec<f64>,
     /// Errors against Ghia et al. when a table exists for this Re.
-    pub ghia: Option<GhiaErrors>,
+    pub ghia: Option<ProfileErrors>,
+    /// Errors against the extrapolated reference ([`crate::reference::extrapolated`]) when it
+    /// exists for this Re.
+    pub reference: Option<ProfileErrors>,
     /// Largest Theorem 4.5 ratio over all steps.
     pub max_stability_ratio: f64,
     /// Range of c0 over all steps.
@@ -274,18 +278,40 @@ pub fn interp(pos: &[f64], val: &[f64], q: f64) -> f64 {
 }
 
 /// Errors of profiles `(ys, u)`, `(xs, v)` against Ghia's table for `re`.
-pub fn ghia_errors(re: u32, ys: &[f64], u: &[f64], xs: &[f64], v: &[f64]) -> Option<GhiaErrors> {
-    let t = ghia(re)?;
+pub fn ghia_errors(re: u32, ys: &[f64], u: &[f64], xs: &[f64], v: &[f64]) -> Option<ProfileErrors> {
+    Some(profile_errors(&ghia(re)?, ys, u, xs, v))
+}
+
+/// Errors of profiles `(ys, u)`, `(xs, v)` against the extrapolated reference for `re`.
+pub fn reference_errors(
+    re: u32,
+    ys: &[f64],
+    u: &[f64],
+    xs: &[f64],
+    v: &[f64],
+) -> Option<ProfileErrors> {
+    Some(profile_errors(&extrapolated(re)?, ys, u, xs, v))
+}
+
+/// Errors of profiles `(ys, u)`, `(xs, v)` (sorted positions; linear interpolation to the
+/// table's points) against the table `t`.
+pub fn profile_errors(
+    t: &CentrelineTable,
+    ys: &[f64],
+    u: &[f64],
+    xs: &[f64],
+    v: &[f64],
+) -> ProfileErrors {
     let su: Vec<f64> = t.u_vertical.iter().map(|p| interp(ys, u, p.0)).collect();
     let sv: Vec<f64> = t.v_horizontal.iter().map(|p| interp(xs, v, p.0)).collect();
     let (rms_u, max_u) = rms_max(&t.u_vertical, &su);
     let (rms_v, max_v) = rms_max(&t.v_horizontal, &sv);
-    Some(GhiaErrors {
+    ProfileErrors {
         rms_u,
         max_u,
         rms_v,
         max_v,
-    })
+    }
 }
 
 /// Runs a cavity to steadiness (or `t_end`) through [`run_scene`]; `observer` sees every step
@@ -420,6 +446,7 @@ impl Scene<2> for Cavity {
             .map(|k| window.iter().map(|s| s.2[k]).sum::<f64>() / m)
             .collect();
         res.ghia = ghia_errors(cfg.re.round() as u32, &ys, &u, &xs, &v);
+        res.reference = reference_errors(cfg.re.round() as u32, &ys, &u, &xs, &v);
         res.averaged_samples = window.len();
         res.particles = sim.particles.n_fluid();
         res.ghosts = sim.particles.len() - res.particles;
@@ -504,6 +531,14 @@ pub struct CavitySummary {
     pub rms_v: Option<f64>,
     /// Max of `|v − v_Ghia|`.
     pub max_v: Option<f64>,
+    /// RMS of `u − u_ref` against the extrapolated reference (`null` without one for this Re).
+    pub rms_u_ref: Option<f64>,
+    /// Max of `|u − u_ref|`.
+    pub max_u_ref: Option<f64>,
+    /// RMS of `v − v_ref` against the extrapolated reference.
+    pub rms_v_ref: Option<f64>,
+    /// Max of `|v − v_ref|`.
+    pub max_v_ref: Option<f64>,
     /// Steadiness reached.
     pub steady: bool,
     /// Time it was first reached.
@@ -537,6 +572,10 @@ impl CavitySummary {
             max_u: res.ghia.map(|g| g.max_u),
             rms_v: res.ghia.map(|g| g.rms_v),
             max_v: res.ghia.map(|g| g.max_v),
+            rms_u_ref: res.reference.map(|g| g.rms_u),
+            max_u_ref: res.reference.map(|g| g.max_u),
+            rms_v_ref: res.reference.map(|g| g.rms_v),
+            max_v_ref: res.reference.map(|g| g.max_v),
             steady: res.steady,
             steady_time: res.steady_time,
             steady_rate: res.steady_rate,
@@ -573,14 +612,30 @@ pub fn write_plots(
         ));
         sv.push(Series::points("Ghia et al. 1982", t.v_horizontal.clone()));
     }
-    let err = res
-        .ghia
-        .map(|g| format!(" (RMS {:.2}%)", 100.0 * g.rms_u))
-        .unwrap_or_default();
-    let errv = res
-        .ghia
-        .map(|g| format!(" (RMS {:.2}%)", 100.0 * g.rms_v))
-        .unwrap_or_default();
+    if let Some(t) = extrapolated(res.re.round() as u32) {
+        su.push(Series::line(
+            "extrapolated reference",
+            t.u_vertical.iter().map(|(y, u)| (*u, *y)).collect(),
+        ));
+        sv.push(Series::line(
+            "extrapolated reference",
+            t.v_horizontal.clone(),
+        ));
+    }
+    let rms = |g: Option<ProfileErrors>, name: &str, f: fn(&ProfileErrors) -> f64| {
+        g.map(|g| format!(" {name} {:.2}%", 100.0 * f(&g)))
+            .unwrap_or_default()
+    };
+    let err = format!(
+        "{}{}",
+        rms(res.ghia, "RMS Ghia", |g| g.rms_u),
+        rms(res.reference, "ref", |g| g.rms_u)
+    );
+    let errv = format!(
+        "{}{}",
+        rms(res.ghia, "RMS Ghia", |g| g.rms_v),
+        rms(res.reference, "ref", |g| g.rms_v)
+    );
     line_charts(
         &dir.join("profiles.png"),
         1400,
@@ -588,7 +643,7 @@ pub fn write_plots(
         &[
             (
                 Chart {
-                    title: format!("u along x = 0.5, Re {} n {}{err}", res.re, res.n),
+                    title: format!("u along x = 0.5, Re {} n {}:{err}", res.re, res.n),
                     x_label: "u / U".into(),
                     y_label: "y".into(),
                     ..Default::default()
@@ -597,7 +652,7 @@ pub fn write_plots(
             ),
             (
                 Chart {
-                    title: format!("v along y = 0.5, Re {} n {}{errv}", res.re, res.n),
+                    title: format!("v along y = 0.5, Re {} n {}:{errv}", res.re, res.n),
                     x_label: "x".into(),
                     y_label: "v / U".into(),
                     ..Default::default()
