@@ -247,9 +247,9 @@ fn run(a: Args) -> Result<ExitCode> {
     }
     println!(
         "max Theorem 4.5 ratio {:.3}, c0 in [{:.4}, {:.4}]; outputs in {}",
-        res.max_stability_ratio,
-        res.c0_min,
-        res.c0_max,
+        res.monitor.max_stability_ratio,
+        res.monitor.c0_min,
+        res.monitor.c0_max,
         out.display()
     );
     Ok(ExitCode::SUCCESS)

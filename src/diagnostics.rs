@@ -266,6 +266,19 @@ pub fn shepard_sums<const D: usize>(nl: &NeighborList<D>, vol: &[f64]) -> Vec<f6
         .collect()
 }
 
+/// Smallest pair distance `min_{i∈region, j} r_ij` over the neighbour pairs of the rows in
+/// `region` (`∞` when they have no neighbour): the closest approach of two particles, or of a
+/// particle and its mirror image (twice its distance to a wall).
+pub fn min_spacing<const D: usize>(nl: &NeighborList<D>, role: &[Role], region: Region) -> f64 {
+    (0..nl.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .filter(|&i| region.contains(role[i]))
+        .map(|i| nl.row(i).map(|k| nl.r2()[k]).fold(f64::INFINITY, f64::min))
+        .reduce(|| f64::INFINITY, f64::min)
+        .sqrt()
+}
+
 /// Semi-regularity constant `c0 = max_{i∈region} Σ_{j≠i} ω_j w_h(r_ij)` (Definition 3.2).
 /// Lemma 4.4 and Theorem 4.5 only use the rows of `Ω`, so `Region::Omega` is what the
 /// stability check needs; `Region::OmegaH` gives the paper's maximum over every particle.

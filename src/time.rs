@@ -117,6 +117,10 @@ pub struct StabilityGuard {
     /// Fail when the Theorem 4.5 ratio of a step exceeds this (the theory bounds it by 1 with
     /// the mirror source continuation).
     pub stability_ratio: Option<f64>,
+    /// Fail when the correction removes more than this share of the predicted velocity,
+    /// `‖uⁿ⁺¹ − u*‖/‖u*‖` ([`StepReport::correction_ratio`]), checked when the previous step's
+    /// energy exceeds `energy_floor` (a flow started from rest is all correction at first).
+    pub correction_ratio: Option<f64>,
 }
 
 impl StabilityGuard {
@@ -135,6 +139,7 @@ impl StabilityGuard {
             ("guard.energy_growth", self.energy_growth),
             ("guard.speed_over_ref", self.speed_over_ref),
             ("guard.stability_ratio", self.stability_ratio),
+            ("guard.correction_ratio", self.correction_ratio),
         ] {
             if let Some(v) = v {
                 if v.is_nan() || v <= 0.0 {
@@ -189,12 +194,9 @@ impl StabilityGuard {
         let g = self;
         let ke = report.kinetic_energy;
         let prev = prev_energy.replace(ke);
+        let above_floor = prev.is_some_and(|e0| e0 > 0.0 && e0 >= g.energy_floor);
         let failed = match prev {
-            Some(e0)
-                if e0 > 0.0
-                    && e0 >= g.energy_floor
-                    && g.energy_growth.is_some_and(|f| ke > f * e0) =>
-            {
+            Some(e0) if above_floor && g.energy_growth.is_some_and(|f| ke > f * e0) => {
                 Some(("kinetic energy growth", ke / e0, g.energy_growth))
             }
             _ => None,
@@ -208,6 +210,17 @@ impl StabilityGuard {
             g.stability_ratio
                 .filter(|&f| report.stability_ratio > f)
                 .map(|f| ("Theorem 4.5 ratio", report.stability_ratio, Some(f)))
+        })
+        .or_else(|| {
+            g.correction_ratio
+                .filter(|&f| above_floor && report.correction_ratio > f)
+                .map(|f| {
+                    (
+                        "correction / predicted velocity",
+                        report.correction_ratio,
+                        Some(f),
+                    )
+                })
         });
         let Some((quantity, value, Some(bound))) = failed else {
             return Ok(());

@@ -207,6 +207,9 @@ pub struct FlowReport {
     /// `Δt` over the smallest of the CFL, explicit viscous and body-force limits at the start
     /// of the step ([`Simulation::dt_bound`]): above 1 the step exceeds a stability limit.
     pub dt_ratio: f64,
+    /// Kinetic energy after the step over the energy before it (`None` on the first step or
+    /// from rest). Above 1 without a forcing that explains it, the run is blowing up.
+    pub energy_growth: Option<f64>,
 }
 
 /// A step of [`Simulation::advance_to`] that falls short of the end time by at most this
@@ -546,6 +549,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             self.time = t;
         }
         self.steps += 1;
+        let energy_growth = self
+            .prev_energy
+            .filter(|&e0| e0 > 0.0)
+            .map(|e0| report.kinetic_energy / e0);
         self.params.limits.guard.check_report(
             &report,
             self.params.limits.u_ref,
@@ -564,6 +571,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             advect_seconds,
             projection: report,
             dt_ratio,
+            energy_growth,
         })
     }
 }

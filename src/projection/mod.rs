@@ -40,8 +40,8 @@ pub mod stages;
 use crate::boundary::{Boundary, VectorKind};
 use crate::consistent::{GradientKind, GradientOperator};
 use crate::diagnostics::{
-    connectivity, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio, Components,
-    ConnectivitySummary, Region,
+    connectivity, min_spacing, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio,
+    Components, ConnectivitySummary, Region,
 };
 use crate::error::{Error, InputError};
 use crate::neighbors::NeighborList;
@@ -304,6 +304,9 @@ pub struct StepReport {
     pub connectivity: ConnectivitySummary,
     /// Semi-regularity constant `c0` over `Ω`.
     pub c0: f64,
+    /// Smallest distance between a fluid particle and any neighbour (ghosts included; `∞` when
+    /// no fluid particle has one). Falls when particles clump or approach a wall.
+    pub min_spacing: f64,
     /// Theorem 4.5 ratio `‖φ‖_h01(Ω) / (√(d c0) ‖f‖_ℓ2(Ω))`, at most 1 by the theorem.
     pub stability_ratio: f64,
     /// The Poisson solve.
@@ -314,6 +317,10 @@ pub struct StepReport {
     /// `‖D uⁿ⁺¹‖_ℓ2(Ω)`, measured exactly as `div_before` (band zeroed, same ghost rule), so the
     /// two compare what the projection removed.
     pub div_after: f64,
+    /// `‖uⁿ⁺¹ − u*‖_ℓ2(Ω) / ‖u*‖_ℓ2(Ω)` (0 when `u* = 0`): the share of the predicted velocity
+    /// the correction removes. Small (`O(Δt)`) in a healthy run; it approaches or exceeds 1 when
+    /// the pressure feedback drives a blow-up, while the Theorem 4.5 ratio can stay below 1.
+    pub correction_ratio: f64,
     /// `½ ρ Σ_Ω ω_i |u_i|²` after the step.
     pub kinetic_energy: f64,
     /// `max_Ω |u_i|` after the step.
@@ -428,7 +435,7 @@ pub struct ProjectionStep<const D: usize> {
     rhs: Vec<f64>,
     work: Vec<f64>,
     viscous_info: SolveInfo,
-    diagnostics_cache: Option<(DiagnosticsKey, Components, f64)>,
+    diagnostics_cache: Option<(DiagnosticsKey, Components, f64, f64)>,
     gradient: GradientOperator<D>,
 }
 
@@ -493,7 +500,7 @@ impl<const D: usize> ProjectionStep<D> {
         particles: &Particles<D>,
         nl: &NeighborList<D>,
         params: &ProjectionParams<D>,
-    ) -> Result<(Components, f64), Error> {
+    ) -> Result<(Components, f64, f64), Error> {
         let key = DiagnosticsKey {
             epoch: nl.epoch(),
             generation: nl.generation(),
@@ -501,22 +508,23 @@ impl<const D: usize> ProjectionStep<D> {
             vol: particles.vol.clone(),
         };
         let cached = match &self.diagnostics_cache {
-            Some((k, comps, c0)) if params.reuse_diagnostics && *k == key => {
-                Some((comps.clone(), *c0))
+            Some((k, comps, c0, s)) if params.reuse_diagnostics && *k == key => {
+                Some((comps.clone(), *c0, *s))
             }
             _ => None,
         };
-        let (comps, c0) = match cached {
+        let (comps, c0, spacing) = match cached {
             Some(v) => v,
             None => {
                 let comps = connectivity(nl, &particles.role);
                 let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
-                (comps, c0)
+                let spacing = min_spacing(nl, &particles.role, Region::Omega);
+                (comps, c0, spacing)
             }
         };
-        self.diagnostics_cache = Some((key, comps.clone(), c0));
+        self.diagnostics_cache = Some((key, comps.clone(), c0, spacing));
         comps.check(params.allowed_floating)?;
-        Ok((comps, c0))
+        Ok((comps, c0, spacing))
     }
 
     /// Predictor into `u_star` (resized to the particles; ghosts filled by the no-slip rule):
@@ -748,9 +756,10 @@ impl<const D: usize> ProjectionStep<D> {
 
         // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
         //    roles or volumes changed: they are functions of those alone)
-        let (comps, c0) = self.diagnostics(particles, nl, params)?;
+        let (comps, c0, spacing) = self.diagnostics(particles, nl, params)?;
         report.connectivity = comps.summary();
         report.c0 = c0;
+        report.min_spacing = spacing;
         report.timings.diagnostics = t.elapsed().as_secs_f64();
         let role = &particles.role;
         let vol = &particles.vol;
@@ -868,6 +877,7 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.rhs,
         );
         let (ke, vmax) = stages::energy(vol, role, rho, &self.u_new)?;
+        report.correction_ratio = stages::correction_ratio(vol, role, &self.u_star, &self.u_new);
         report.kinetic_energy = ke;
         report.max_speed = vmax;
         std::mem::swap(&mut particles.u, &mut self.u_new);

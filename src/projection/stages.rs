@@ -165,6 +165,29 @@ pub fn measure_divergence<const D: usize>(
     norm_l2(vol, div, role, Region::Omega)
 }
 
+/// `‖u_new − u*‖_ℓ2(Ω) / ‖u*‖_ℓ2(Ω)` (ω-weighted over the fluid; 0 when `u* = 0`): the
+/// share of the predicted velocity the correction removed.
+pub fn correction_ratio<const D: usize>(
+    vol: &[f64],
+    role: &[Role],
+    u_star: &[[f64; D]],
+    u_new: &[[f64; D]],
+) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..role.len() {
+        if role[i].is_fluid() {
+            let d: [f64; D] = std::array::from_fn(|a| u_new[i][a] - u_star[i][a]);
+            num += vol[i] * norm2(&d);
+            den += vol[i] * norm2(&u_star[i]);
+        }
+    }
+    if den > 0.0 {
+        (num / den).sqrt()
+    } else {
+        0.0
+    }
+}
+
 /// Kinetic energy `½ ρ Σ_Ω ω_i |u_i|²` and the maximum speed `max_Ω |u_i|`; a non-finite
 /// velocity is reported at the first fluid particle that has one.
 pub fn energy<const D: usize>(

@@ -231,6 +231,9 @@ pub struct StepContext {
     pub neighbors_seconds: f64,
     /// Seconds spent on advection, shifting, confinement.
     pub advect_seconds: f64,
+    /// Kinetic energy after the step over the energy before it (`None`: first step, from rest,
+    /// or not known to the loop).
+    pub energy_growth: Option<f64>,
 }
 
 impl StepContext {
@@ -256,6 +259,7 @@ impl StepContext {
             max_shift: report.max_shift,
             neighbors_seconds: report.neighbors_seconds,
             advect_seconds: report.advect_seconds,
+            energy_growth: report.energy_growth,
         }
     }
 }

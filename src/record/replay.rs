@@ -624,6 +624,12 @@ pub struct ReplaySummary {
     pub dt: Stat,
     /// Semi-regularity constant.
     pub c0: Stat,
+    /// Smallest particle spacing per step (NaN in older logs).
+    pub min_spacing: Stat,
+    /// Correction over predicted velocity per step (NaN in older logs).
+    pub correction_ratio: Stat,
+    /// Kinetic-energy growth per step (steps that report it).
+    pub energy_growth: Stat,
     /// Largest Theorem 4.5 ratio and its step.
     pub max_stability_ratio: Option<(f64, u64)>,
     /// Steps whose ratio exceeds 1 (the theorem's bound).
@@ -686,6 +692,13 @@ impl fmt::Display for ReplaySummary {
         }
         writeln!(f, "dt          {}", st(&self.dt))?;
         writeln!(f, "c0          {}", st(&self.c0))?;
+        writeln!(f, "min spacing {}", st(&self.min_spacing))?;
+        writeln!(
+            f,
+            "correction  {} (‖uⁿ⁺¹ − u*‖/‖u*‖)",
+            st(&self.correction_ratio)
+        )?;
+        writeln!(f, "KE growth   {} (per step)", st(&self.energy_growth))?;
         if let Some((r, s)) = self.max_stability_ratio {
             writeln!(
                 f,
@@ -785,6 +798,9 @@ impl Replay {
         out.time_span = Some((first.time - first.dt, last.time));
         out.dt = Stat::of(s.iter().map(|d| d.dt));
         out.c0 = Stat::of(s.iter().map(|d| d.c0));
+        out.min_spacing = Stat::of(s.iter().map(|d| d.min_spacing));
+        out.correction_ratio = Stat::of(s.iter().map(|d| d.correction_ratio));
+        out.energy_growth = Stat::of(s.iter().filter_map(|d| d.energy_growth));
         out.max_stability_ratio = s
             .iter()
             .filter(|d| d.stability_ratio.is_finite())
@@ -841,7 +857,7 @@ impl Replay {
         writeln!(
             w,
             "step,time,dt,dt_limit,components,anchored,floating,isolated,allowed_floating,\
-             connectivity_ok,c0,stability_ratio,solver,unknowns,nnz,iterations,abs_residual,\
+             connectivity_ok,c0,stability_ratio,min_spacing,correction_ratio,energy_growth,solver,unknowns,nnz,iterations,abs_residual,\
              rel_residual,compatibility_defect,div_before,div_after,kinetic_energy,max_speed,\
              neighbors_rebuilt,max_shift,t_neighbors,t_predictor,t_diagnostics,t_source,\
              t_solve,t_correction,t_advect,t_total,t_record"
@@ -856,7 +872,7 @@ impl Replay {
                 .unwrap_or_default();
             writeln!(
                 w,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
                 d.time,
                 d.dt,
@@ -869,6 +885,9 @@ impl Replay {
                 c.ok,
                 d.c0,
                 d.stability_ratio,
+                d.min_spacing,
+                d.correction_ratio,
+                d.energy_growth.map(|g| g.to_string()).unwrap_or_default(),
                 d.solve.solver,
                 d.solve.unknowns,
                 d.solve.nnz,
@@ -931,6 +950,19 @@ impl Replay {
                 ],
             ),
             (
+                chart("spacing, correction, energy growth", "", true),
+                vec![
+                    series("min spacing", &|d| d.min_spacing),
+                    series("‖uⁿ⁺¹ − u*‖/‖u*‖", &|d| d.correction_ratio),
+                    series("KE growth − 1 (abs)", &|d| {
+                        d.energy_growth.map_or(f64::NAN, |g| (g - 1.0).abs())
+                    }),
+                    series("isolated + floating", &|d| {
+                        (d.connectivity.isolated + d.connectivity.floating) as f64
+                    }),
+                ],
+            ),
+            (
                 chart("divergence (l2)", "", true),
                 vec![
                     series("before projection", &|d| d.div_before),
@@ -946,7 +978,7 @@ impl Replay {
                 ],
             ),
         ];
-        line_charts(out, 2400, 600, &charts).map_err(|e| RecordError::Format {
+        line_charts(out, 3000, 600, &charts).map_err(|e| RecordError::Format {
             path: out.to_path_buf(),
             message: e.to_string(),
         })

@@ -66,6 +66,11 @@ fn nullable<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
+/// The value of a number absent from an older log.
+fn nan() -> f64 {
+    f64::NAN
+}
+
 // ---------------------------------------------------------------------------------------------
 // Deriving the stored schemas
 
@@ -359,6 +364,20 @@ pub struct StepDiagnostics {
     #[serde(deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
     pub stability_ratio: f64,
+    /// Smallest distance between a fluid particle and a neighbour (ghosts included; absent in
+    /// older logs: NaN).
+    #[serde(default = "nan", deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
+    pub min_spacing: f64,
+    /// `‖uⁿ⁺¹ − u*‖/‖u*‖`: the share of the predicted velocity the correction removed (absent
+    /// in older logs: NaN).
+    #[serde(default = "nan", deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
+    pub correction_ratio: f64,
+    /// Kinetic energy after the step over the energy before it; `null` on the first step, from
+    /// rest, or when the loop did not say.
+    #[serde(default)]
+    pub energy_growth: Option<f64>,
     /// The Poisson solve.
     pub solve: SolveDiagnostics,
     /// `‖∇̂h·u*‖_ℓ2(Ω)`.
@@ -427,6 +446,9 @@ impl StepDiagnostics {
             },
             c0: p.c0,
             stability_ratio: p.stability_ratio,
+            min_spacing: p.min_spacing,
+            correction_ratio: p.correction_ratio,
+            energy_growth: ctx.energy_growth,
             solve: SolveDiagnostics {
                 solver: p.solve.solver,
                 unknowns: p.solve.unknowns,

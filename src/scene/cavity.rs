@@ -8,7 +8,7 @@
 //! `U² / L`). The reported profiles are the mean of the samples taken over the last
 //! `steady.average_window` time units (Lagrangian particles sample a steady field with noise).
 
-use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams, Table};
+use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
@@ -254,14 +254,8 @@ pub struct CavityResult {
     /// Errors against the extrapolated reference ([`crate::reference::extrapolated`]) when it
     /// exists for this Re.
     pub reference: Option<ProfileErrors>,
-    /// Largest Theorem 4.5 ratio over all steps.
-    pub max_stability_ratio: f64,
-    /// Range of c0 over all steps.
-    pub c0_min: f64,
-    /// Range of c0 over all steps.
-    pub c0_max: f64,
-    /// Largest `‖∇̂h·u‖` after projection over `‖∇̂h·u*‖` before, over all steps.
-    pub max_div_ratio: f64,
+    /// Ranges of the per-step monitor (c0, connectivity, spacing, Theorem 4.5 ratio, …).
+    pub monitor: MonitorRanges,
 }
 
 /// Interpolates a profile given at sorted positions `pos` to `q` (linear).
@@ -365,7 +359,6 @@ impl Scene<2> for Cavity {
             res: CavityResult {
                 re: cfg.re,
                 n: cfg.n,
-                c0_min: f64::INFINITY,
                 ..Default::default()
             },
         }
@@ -378,14 +371,8 @@ impl Scene<2> for Cavity {
         sim: &Simulation<2, Walls<2>>,
     ) -> ControlFlow<()> {
         let st = cfg.scene.steady;
-        let pr = &rep.projection;
         let res = &mut s.res;
-        res.max_stability_ratio = res.max_stability_ratio.max(pr.stability_ratio);
-        res.c0_min = res.c0_min.min(pr.c0);
-        res.c0_max = res.c0_max.max(pr.c0);
-        if pr.div_before > 0.0 {
-            res.max_div_ratio = res.max_div_ratio.max(pr.div_after / pr.div_before);
-        }
+        res.monitor.observe(rep);
         if sim.time + 1e-12 >= s.next_sample {
             let (u, v) = sample_profiles(sim, &s.ys, &s.xs);
             if let Some(last) = s.samples.last() {
@@ -547,12 +534,10 @@ pub struct CavitySummary {
     pub steady_rate: f64,
     /// How steadiness was judged.
     pub steadiness: String,
-    /// Largest Theorem 4.5 ratio over all steps.
-    pub max_stability_ratio: f64,
-    /// Smallest c0 over all steps.
-    pub c0_min: f64,
-    /// Largest c0 over all steps.
-    pub c0_max: f64,
+    /// Ranges of the per-step monitor (`c0_min`, `c0_max`, `min_spacing`,
+    /// `max_stability_ratio`, …).
+    #[serde(flatten)]
+    pub monitor: MonitorRanges,
     /// The configuration of the run.
     pub config: CavityConfig,
 }
@@ -580,9 +565,7 @@ impl CavitySummary {
             steady_time: res.steady_time,
             steady_rate: res.steady_rate,
             steadiness: res.steady_rule.clone(),
-            max_stability_ratio: res.max_stability_ratio,
-            c0_min: res.c0_min,
-            c0_max: res.c0_max,
+            monitor: res.monitor.clone(),
             config: cfg.clone(),
         }
     }

@@ -16,6 +16,7 @@
 //! (feature `cli`) write only where the caller asks.
 
 pub mod cavity;
+pub mod channel;
 pub mod manufactured;
 pub mod taylor_green;
 
@@ -465,6 +466,76 @@ fn config_error(e: serde_path_to_error::Error<serde_json::Error>) -> InputError 
 // ---------------------------------------------------------------------------------------------
 // the scene trait and the generic run
 
+/// The ranges over a run of what the projection monitors every step: the semi-regularity
+/// constant, connectivity, the closest particle approach, the Theorem 4.5 ratio and the
+/// quantities that grow in a blow-up. Every scene's summary carries them (flattened).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MonitorRanges {
+    /// Smallest `c0` over the steps.
+    pub c0_min: f64,
+    /// Largest `c0` over the steps.
+    pub c0_max: f64,
+    /// Smallest distance between a fluid particle and a neighbour over the steps
+    /// ([`crate::projection::StepReport::min_spacing`]).
+    pub min_spacing: f64,
+    /// Most floating (pure Neumann) components in a step.
+    pub max_floating: usize,
+    /// Most isolated fluid particles in a step.
+    pub max_isolated: usize,
+    /// Largest Theorem 4.5 ratio (the theory bounds it by 1).
+    pub max_stability_ratio: f64,
+    /// Largest `‖∇̂h·uⁿ⁺¹‖ / ‖∇̂h·u*‖` (divergence after over before the projection).
+    pub max_div_ratio: f64,
+    /// Largest `‖uⁿ⁺¹ − u*‖/‖u*‖` after the first ten steps (a flow started from rest is all
+    /// correction at first).
+    pub max_correction_ratio: f64,
+    /// Largest kinetic-energy growth factor of a step after the first ten steps.
+    pub max_energy_growth: f64,
+}
+
+impl Default for MonitorRanges {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl MonitorRanges {
+    /// Before the first step: empty ranges (`c0_min` and `min_spacing` at `∞`).
+    pub fn new() -> Self {
+        MonitorRanges {
+            c0_min: f64::INFINITY,
+            c0_max: 0.0,
+            min_spacing: f64::INFINITY,
+            max_floating: 0,
+            max_isolated: 0,
+            max_stability_ratio: 0.0,
+            max_div_ratio: 0.0,
+            max_correction_ratio: 0.0,
+            max_energy_growth: 0.0,
+        }
+    }
+
+    /// Widens the ranges by one step's report.
+    pub fn observe(&mut self, rep: &FlowReport) {
+        let p = &rep.projection;
+        self.c0_min = self.c0_min.min(p.c0);
+        self.c0_max = self.c0_max.max(p.c0);
+        self.min_spacing = self.min_spacing.min(p.min_spacing);
+        self.max_floating = self.max_floating.max(p.connectivity.floating);
+        self.max_isolated = self.max_isolated.max(p.connectivity.isolated);
+        self.max_stability_ratio = self.max_stability_ratio.max(p.stability_ratio);
+        if p.div_before > 0.0 {
+            self.max_div_ratio = self.max_div_ratio.max(p.div_after / p.div_before);
+        }
+        if rep.step > 10 {
+            self.max_correction_ratio = self.max_correction_ratio.max(p.correction_ratio);
+            if let Some(g) = rep.energy_growth {
+                self.max_energy_growth = self.max_energy_growth.max(g);
+            }
+        }
+    }
+}
+
 /// A text table a scene produces at the end (e.g. `profile_u.csv`); the caller decides where
 /// it goes ([`SceneRun::write_tables`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -717,4 +788,5 @@ macro_rules! registry {
 registry! {
     2 => cavity::Cavity,
     2 => taylor_green::TaylorGreen,
+    2 => channel::Channel,
 }

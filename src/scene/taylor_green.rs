@@ -4,7 +4,7 @@
 //! `u = −U e^{−8π²t/Re} cos 2πx sin 2πy`, `v = U e^{−8π²t/Re} sin 2πx cos 2πy`,
 //! `p = −ρU² e^{−16π²t/Re} (cos 4πx + cos 4πy)/4`.
 
-use super::{run_scene, FlowConfig, Scene, SceneConfig, SceneParams};
+use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams};
 use crate::boundary::PeriodicBox;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
@@ -146,8 +146,8 @@ pub struct TaylorGreenResult {
     pub wall_seconds: f64,
     /// Errors at the final time.
     pub errors: TaylorGreenErrors,
-    /// Largest Theorem 4.5 ratio.
-    pub max_stability_ratio: f64,
+    /// Ranges of the per-step monitor.
+    pub monitor: MonitorRanges,
 }
 
 /// Runs to `t_end` (the last step is shortened to land on it) through [`run_scene`];
@@ -186,8 +186,10 @@ pub struct TaylorGreenSummary {
     pub linf_decay_error: f64,
     /// Mean-free relative L1 pressure error.
     pub l1_pressure_error: f64,
-    /// Largest Theorem 4.5 ratio.
-    pub max_stability_ratio: f64,
+    /// Ranges of the per-step monitor (`c0_min`, `c0_max`, `min_spacing`,
+    /// `max_stability_ratio`, …).
+    #[serde(flatten)]
+    pub monitor: MonitorRanges,
     /// The configuration of the run.
     pub config: TaylorGreenConfig,
 }
@@ -217,7 +219,7 @@ impl Scene<2> for TaylorGreen {
         rep: &FlowReport,
         _sim: &Simulation<2, PeriodicBox<2>>,
     ) -> ControlFlow<()> {
-        res.max_stability_ratio = res.max_stability_ratio.max(rep.projection.stability_ratio);
+        res.monitor.observe(rep);
         ControlFlow::Continue(())
     }
 
@@ -244,7 +246,7 @@ impl Scene<2> for TaylorGreen {
             l1_velocity_error: res.errors.l1_velocity_error,
             linf_decay_error: res.errors.linf_decay_error,
             l1_pressure_error: res.errors.l1_pressure_error,
-            max_stability_ratio: res.max_stability_ratio,
+            monitor: res.monitor.clone(),
             config: cfg.clone(),
         }
     }
