@@ -48,6 +48,15 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
+    /// The displacement that brings a point `x` to at least `margin` inside every wall
+    /// (zero when it already is, and for boundaries without walls). Moving particles use it as
+    /// the wall part of their shift: a particle the flow carries closer than `margin` to a wall
+    /// is moved back along the wall normal, and its velocity and pressure are re-interpolated to
+    /// the new position like any shifted particle's.
+    fn wall_margin_push(&self, x: &[f64; D], margin: f64) -> [f64; D] {
+        let _ = (x, margin);
+        [0.0; D]
+    }
     /// The no-slip rule of a ghost reflected across the walls in `walls` as an affine map
     /// `u_g = σ u_src + b` (`σ = ±1`), for implicit solves that need it as matrix entries.
     fn velocity_affine(&self, walls: u8) -> (f64, [f64; D]) {
@@ -395,6 +404,17 @@ impl<const D: usize> Boundary<D> for Walls<D> {
             }
         }
         Ok(())
+    }
+
+    fn wall_margin_push(&self, x: &[f64; D], margin: f64) -> [f64; D] {
+        let mut d = [0.0; D];
+        for w in &self.walls {
+            let s = w.distance(x);
+            if s < margin {
+                d[w.axis] += (margin - s) * w.inward;
+            }
+        }
+        d
     }
 
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError> {

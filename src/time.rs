@@ -124,6 +124,19 @@ pub struct StabilityGuard {
 }
 
 impl StabilityGuard {
+    /// The guard the scenes run with by default: fail when the largest speed exceeds 3 `u_ref`
+    /// or the kinetic energy grows tenfold in one step (neither happens in a healthy run of
+    /// any scene: the lid, the body force and the initial vortex set the speed scale), so that
+    /// a blow-up is named within a few steps of its onset instead of running on to overflow.
+    /// [`StabilityGuard::default`] has every check off (a caller's own loop decides).
+    pub fn blow_up() -> Self {
+        StabilityGuard {
+            speed_over_ref: Some(3.0),
+            energy_growth: Some(10.0),
+            ..Default::default()
+        }
+    }
+
     /// Checks `energy_floor` (non-negative, finite) and the bounds (positive when set), naming
     /// the first bad one by its key under `guard` (`guard.energy_growth`).
     pub fn validate(&self) -> Result<(), InputError> {

@@ -778,10 +778,67 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         }
         other => panic!("{other:?}"),
     }
-    // the guards are off by default: the same runs go on
+    // the scenes' default guard (speed ≤ 3 u_ref, energy growth ≤ 10 per step) lets a healthy
+    // run go on, the library's default guard has every check off
+    assert_eq!(
+        CavityConfig::default().limits.guard,
+        StabilityGuard::blow_up()
+    );
+    assert_eq!(StabilityGuard::default().speed_over_ref, None);
     let mut sim = cavity::build(&CavityConfig::default().with(|c| c.n = 12)).unwrap();
     for _ in 0..20 {
         sim.advance().unwrap();
+    }
+}
+
+#[test]
+fn the_default_guard_names_a_blow_up_within_a_few_steps_of_its_onset() {
+    // explicit viscosity at 40x its stability limit: the energy grows from the first steps;
+    // the scenes' default guard must stop the run within a few steps of the growth, not after
+    // the energy has overflowed
+    let mut cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 16;
+        c.re = 1.0;
+        c.viscous_theta = 0.0;
+    });
+    cfg.limits.dt_fixed = Some(0.02);
+    let mut sim = taylor_green::build(&cfg).unwrap();
+    let mut growing = 0;
+    let err = loop {
+        match sim.advance() {
+            Ok(r) => {
+                if r.energy_growth.is_some_and(|g| g > 1.0) {
+                    growing += 1;
+                }
+                assert!(r.projection.kinetic_energy.is_finite());
+            }
+            Err(e) => break e,
+        }
+        assert!(sim.steps < 1000, "no blow-up detected");
+    };
+    assert!(
+        growing >= 1 && growing <= 6,
+        "{growing} growing steps before: {err}"
+    );
+    match &err {
+        Error::Stability(StabilityError::BlowUp { quantity, .. }) => {
+            assert!(
+                *quantity == "max speed / u_ref" || *quantity == "kinetic energy growth",
+                "{quantity}"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    // the correction's share of the predicted velocity is a guard of its own
+    let mut cfg = TaylorGreenConfig::default().with(|c| c.n = 16);
+    cfg.limits.guard.correction_ratio = Some(1e-12);
+    let mut sim = taylor_green::build(&cfg).unwrap();
+    sim.advance().unwrap();
+    match sim.advance() {
+        Err(Error::Stability(StabilityError::BlowUp {
+            step: 2, quantity, ..
+        })) => assert_eq!(quantity, "correction / predicted velocity"),
+        other => panic!("{other:?}"),
     }
 }
 

@@ -6,13 +6,15 @@
 //!    the ghosts and searches again (otherwise only re-measures pairs);
 //! 2. recomputes volumes (`ω_i = 1/Σ_{j≠i} w_h(r_ij)`) if asked;
 //! 3. picks `Δt` from the CFL, viscous and body-force limits;
-//! 4. Eulerian frame: predictor with `−(u·∇h)u` and projection on the fixed particles;
-//!    Lagrangian frame: predictor at `xⁿ`, particles moved with `u*`, neighbours refreshed, and the
-//!    projection at the new positions;
-//! 5. Lagrangian frame: shifts particles by Fickian diffusion
-//!    (`δx_i = −A h |u_i| Δt ∇C_i`, Skillen et al. 2013's scaling of Lind et al. 2012's law) and
-//!    corrects their velocity and pressure to the new position by a first-order Taylor
-//!    expansion (Xu et al. 2009), `u_i += (δx_i·∇h) u_i`.
+//! 4. predictor and projection on the current configuration (Eulerian frame: with the
+//!    convective term `−(u·∇h)u`);
+//! 5. Lagrangian frame: moves the particles with the projected velocity, `xⁿ⁺¹ = xⁿ + Δt uⁿ⁺¹ + δ`,
+//!    where the shift `δ` is the Fickian one (`δx_i = −A h |u_i| Δt ∇C_i`, Skillen et al. 2013's
+//!    scaling of Lind et al. 2012's law; none in a pure Lagrangian run) plus the wall margin
+//!    ([`WALL_MARGIN`]), and corrects velocity and pressure to the shifted position by a
+//!    first-order Taylor expansion (Xu et al. 2009), `u_i += (δ_i·∇h) u_i`. The particles thus
+//!    move with a field that is divergence-free on the configuration it was projected on (the
+//!    ISPH step of Lind et al. 2012), and the neighbours follow at the start of the next step.
 
 //!
 //! Time-step control and the stability guards are in [`crate::time`] (re-exported here), the
@@ -210,7 +212,17 @@ pub struct FlowReport {
     /// Kinetic energy after the step over the energy before it (`None` on the first step or
     /// from rest). Above 1 without a forcing that explains it, the run is blowing up.
     pub energy_growth: Option<f64>,
+    /// Fluid particles the wall margin moved back this step (Lagrangian frame; see
+    /// [`WALL_MARGIN`]).
+    pub wall_pushes: usize,
 }
+
+/// Moving particles are kept at least this fraction of the spacing `Δx` inside the walls: a
+/// particle the flow carries closer is moved back along the wall normal and its velocity and
+/// pressure re-interpolated there (a shift, counted in [`FlowReport::wall_pushes`]). A fluid
+/// particle's mirror image is then never closer than `Δx/2`, and no particle crosses a wall
+/// within a step whose normal displacement is below the margin.
+pub const WALL_MARGIN: f64 = 0.25;
 
 /// A step of [`Simulation::advance_to`] that falls short of the end time by at most this
 /// fraction of itself is stretched to land on it, rather than leave a sliver of a step.
@@ -384,9 +396,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
     /// Advances one step.
     ///
     /// Eulerian: predictor (with `−(u·∇h)u`) and projection on the fixed configuration.
-    /// Lagrangian: predictor at `xⁿ`, particles moved to `x* = xⁿ + Δt u*`, neighbours and volumes
-    /// refreshed, projection at `x*` (so the divergence is removed on the configuration the
-    /// particles occupy, as in Cummins & Rudman 1999), then shifting.
+    /// Lagrangian: predictor and projection at `xⁿ`, then the particles move with `uⁿ⁺¹` plus
+    /// their shift (Fickian and wall margin, with the Taylor correction of `u` and `p`).
     pub fn advance(&mut self) -> Result<FlowReport, Error> {
         self.advance_inner(None)
     }
@@ -445,7 +456,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             rebuilt |= self.refresh()?;
             self.stale = false;
         }
-        let mut neighbors_seconds = t0.elapsed().as_secs_f64();
+        let neighbors_seconds = t0.elapsed().as_secs_f64();
         check_state(&self.particles, &self.nl)?;
         let (mut dt, mut dt_limit) = self.time_step();
         // the last step of advance_to(t): shortened (or stretched by a rounding sliver) to land
@@ -463,7 +474,6 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .limits
             .guard
             .check_dt(self.steps + 1, dt, bound_limit, bound)?;
-        let n = self.particles.len();
         let lagrangian = self.plan.has(Stage::Advection);
         let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
@@ -498,23 +508,6 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &mut u_star,
         )?;
         let mut advect_seconds = 0.0;
-        if lagrangian {
-            // move with u* and refresh the configuration before projecting
-            let t1 = Instant::now();
-            let p = &mut self.particles;
-            for i in 0..n {
-                if p.role[i].is_fluid() {
-                    for a in 0..D {
-                        p.x[i][a] += dt * u_star[i][a];
-                    }
-                }
-            }
-            self.boundary.confine(p)?;
-            advect_seconds += t1.elapsed().as_secs_f64();
-            let t2 = Instant::now();
-            rebuilt |= self.refresh()?;
-            neighbors_seconds += t2.elapsed().as_secs_f64();
-        }
         let mut report = self.projection.project(
             &mut self.particles,
             &self.nl,
@@ -524,26 +517,29 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &u_star,
         )?;
         pred.add_to(&mut report);
-        let mut max_shift = 0.0;
-        if self.plan.has(Stage::Shifting) {
+        let mut moved = shifting::Moved::default();
+        if lagrangian {
+            // move with uⁿ⁺¹ (divergence-free on the configuration it was projected on), shift,
+            // keep off the walls; the neighbours are refreshed at the start of the next step
             let t1 = Instant::now();
-            if let Some(sh) = self.params.shifting {
-                max_shift = shifting::shift(
-                    &sh,
-                    self.params.dx,
-                    dt,
-                    &mut self.particles,
-                    &self.nl,
-                    &self.boundary,
-                    self.plan.has(Stage::Ghosts),
-                    &mut self.shift_scratch,
-                )?;
-            }
-            if max_shift > 0.0 {
-                self.stale = true;
-            }
+            let sh = self
+                .params
+                .shifting
+                .filter(|_| self.plan.has(Stage::Shifting));
+            moved = shifting::advance_particles(
+                sh.as_ref(),
+                self.params.dx,
+                dt,
+                WALL_MARGIN * self.params.dx,
+                &mut self.particles,
+                &self.nl,
+                &self.boundary,
+                &mut self.shift_scratch,
+            )?;
+            self.stale = true;
             advect_seconds += t1.elapsed().as_secs_f64();
         }
+        let max_shift = moved.max_shift;
         self.time += dt;
         if let Some(t) = land {
             self.time = t;
@@ -572,6 +568,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             projection: report,
             dt_ratio,
             energy_growth,
+            wall_pushes: moved.wall_pushes,
         })
     }
 }

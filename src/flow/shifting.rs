@@ -1,11 +1,13 @@
-//! Fickian particle shifting (Lagrangian frame).
+//! Particle motion in the Lagrangian frame: advection with the projected velocity, Fickian
+//! shifting, and the wall margin.
 //!
-//! `δx_i = −A h |u_i| Δt ∇C_i` with `∇C_i = Σ_j ω_j ∇_i w_h(r_ij)` (Skillen et al. 2013's
-//! scaling of Lind et al. 2012's law), limited to `max_fraction · Δx`; velocity and pressure are
+//! `δx_i = −A h |u_i| Δt ∇C_i` with `∇C_i = Σ_j ω_j (1 + R (w_h(r_ij)/w_h(Δx))^n) ∇_i w_h(r_ij)`
+//! (Skillen et al. 2013's scaling of Lind et al. 2012's law, with Lind's tensile correction
+//! `R = 0.2`, `n = 4`), limited to `max_fraction · Δx`; velocity and pressure are
 //! corrected to the new position by a first-order Taylor expansion (Xu et al. 2009),
 //! `u_i += (δx_i·∇h) u_i`, `p_i += δx_i·∇h p_i`, with the gradients before the shift.
 
-use crate::boundary::{Boundary, VectorKind};
+use crate::boundary::Boundary;
 use crate::error::{Error, InputError};
 use crate::math::norm2;
 use crate::neighbors::NeighborList;
@@ -28,6 +30,13 @@ pub struct Shifting {
     /// stagnation regions (where the strain deforms the distribution most) are shifted too
     /// (default true).
     pub global_speed: bool,
+    /// `R` of Lind et al. 2012's tensile correction (default 0.2; 0 disables it): each pair's
+    /// contribution to `∇C` is weighted by `1 + R (w_h(r_ij)/w_h(Δx))^n`, so that pairs closer
+    /// than the spacing push apart more strongly than the concentration gradient alone would
+    /// (against clumping and pairing where the flow compresses the distribution).
+    pub tensile: f64,
+    /// `n` of the tensile correction (default 4).
+    pub tensile_exponent: i32,
 }
 
 impl Default for Shifting {
@@ -37,6 +46,8 @@ impl Default for Shifting {
             max_fraction: 0.2,
             correct: true,
             global_speed: true,
+            tensile: 0.2,
+            tensile_exponent: 4,
         }
     }
 }
@@ -59,6 +70,20 @@ impl Shifting {
                 "must be in [0, 1]",
             ));
         }
+        if !(self.tensile >= 0.0 && self.tensile.is_finite()) {
+            return Err(InputError::parameter(
+                "shifting.tensile",
+                self.tensile,
+                "must be non-negative and finite",
+            ));
+        }
+        if !(1..=16).contains(&self.tensile_exponent) {
+            return Err(InputError::parameter(
+                "shifting.tensile_exponent",
+                self.tensile_exponent as f64,
+                "must be in 1..=16",
+            ));
+        }
         Ok(())
     }
 }
@@ -67,28 +92,43 @@ impl Shifting {
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ShiftScratch<const D: usize> {
     shift: Vec<[f64; D]>,
+    wall: Vec<[f64; D]>,
     grad: Vec<[[f64; D]; D]>,
     gp: Vec<[f64; D]>,
 }
 
-/// Shifts the fluid particles of `p` by `sh` at the configuration of `nl` (with velocity and
-/// pressure correction when `sh.correct`; `ghosts`: fill the ghosts' velocities first), then
-/// confines them to the boundary; returns the largest shift. `dx` is the particle spacing.
+/// What [`advance_particles`] did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Moved {
+    /// Largest shift (Fickian plus wall margin), distance units.
+    pub max_shift: f64,
+    /// Fluid particles the wall margin moved back this step.
+    pub wall_pushes: usize,
+}
+
+/// Moves the fluid particles of `p` with their (projected) velocity, `x += Δt u`, plus a shift
+/// `δ_i`: the Fickian shift of `sh` (when given) computed at the configuration of `nl`, and the
+/// wall part [`Boundary::wall_margin_push`] that keeps every particle at least `margin` inside
+/// the walls. Velocity and pressure are corrected to the shifted position by a first-order
+/// Taylor expansion with the gradients at the configuration of `nl` (always for the wall part;
+/// for the Fickian part when `sh.correct`). Then confines the particles (periodic wrap, a
+/// particle still outside is an error) and returns the largest shift and the number of wall
+/// pushes. `dx` is the particle spacing; `ghosts`: the ghosts' velocities and pressures are
+/// filled (they are after a projection).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn shift<const D: usize, B: Boundary<D>>(
-    sh: &Shifting,
+pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
+    sh: Option<&Shifting>,
     dx: f64,
     dt: f64,
+    margin: f64,
     p: &mut Particles<D>,
     nl: &NeighborList<D>,
     boundary: &B,
-    ghosts: bool,
     s: &mut ShiftScratch<D>,
-) -> Result<f64, Error> {
+) -> Result<Moved, Error> {
     let n = p.len();
     let kernel = *nl.kernel();
     let h = nl.h();
-    let lim = sh.max_fraction * dx;
     let umax =
         p.u.iter()
             .zip(&p.role)
@@ -96,12 +136,15 @@ pub(crate) fn shift<const D: usize, B: Boundary<D>>(
             .map(|(u, _)| norm2(u))
             .fold(0.0f64, f64::max)
             .sqrt();
-    // δx_i = −A h |u_i| Δt ∇C_i,  ∇C_i = Σ_j ω_j ∇_i w_h(r_ij) = −Σ_j ω_j w_h'(r) dx/r
+    // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
+    // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
     s.shift.resize(n, [0.0; D]);
+    let w_dx = kernel.w_h(dx);
     {
         let p = &*p;
         s.shift.par_iter_mut().enumerate().for_each(|(i, s)| {
             *s = [0.0; D];
+            let Some(sh) = sh else { return };
             if !p.role[i].is_fluid() {
                 return;
             }
@@ -109,7 +152,12 @@ pub(crate) fn shift<const D: usize, B: Boundary<D>>(
             for k in nl.row(i) {
                 let j = nl.indices()[k] as usize;
                 let r = nl.r2()[k].sqrt();
-                let c = -p.vol[j] * kernel.dw_h(r) / r;
+                let tensile = if sh.tensile > 0.0 && w_dx > 0.0 {
+                    1.0 + sh.tensile * (kernel.w_h(r) / w_dx).powi(sh.tensile_exponent)
+                } else {
+                    1.0
+                };
+                let c = -p.vol[j] * tensile * kernel.dw_h(r) / r;
                 for a in 0..D {
                     gc[a] += c * nl.dx()[k][a];
                 }
@@ -122,40 +170,65 @@ pub(crate) fn shift<const D: usize, B: Boundary<D>>(
             let f = -sh.coefficient * h * speed * dt;
             let mut d: [f64; D] = gc.map(|g| f * g);
             let m = norm2(&d).sqrt();
+            let lim = sh.max_fraction * dx;
             if m > lim {
                 d = d.map(|v| v * lim / m);
             }
             *s = d;
         });
     }
-    let max_shift = s.shift.iter().map(|d| norm2(d).sqrt()).fold(0.0, f64::max);
-    if sh.correct {
-        // Taylor correction of u and p to the shifted position (gradients before the shift)
-        if ghosts {
-            boundary.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+    let correct_fick = sh.is_some_and(|sh| sh.correct);
+    // wall part, at the advected and Fick-shifted position
+    s.wall.resize(n, [0.0; D]);
+    let mut wall_pushes = 0;
+    for i in 0..n {
+        s.wall[i] = [0.0; D];
+        if !p.role[i].is_fluid() {
+            continue;
         }
+        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + dt * p.u[i][a] + s.shift[i][a]);
+        let w = boundary.wall_margin_push(&x, margin);
+        if w.iter().any(|&v| v != 0.0) {
+            wall_pushes += 1;
+            s.wall[i] = w;
+        }
+    }
+    let max_shift = (0..n)
+        .map(|i| {
+            let d: [f64; D] = std::array::from_fn(|a| s.shift[i][a] + s.wall[i][a]);
+            norm2(&d).sqrt()
+        })
+        .fold(0.0, f64::max);
+    if correct_fick || wall_pushes > 0 {
+        // Taylor correction of u and p to the shifted position (gradients before the move)
         s.grad.resize(n, [[0.0; D]; D]);
         grad_vec_into(nl, &p.vol, &p.u, &mut s.grad);
         s.gp.resize(n, [0.0; D]);
         grad_diff_into(nl, &p.vol, &p.p, &mut s.gp);
-        for i in 0..n {
-            if !p.role[i].is_fluid() {
-                continue;
-            }
-            let d = s.shift[i];
+    }
+    for i in 0..n {
+        if !p.role[i].is_fluid() {
+            continue;
+        }
+        let d: [f64; D] = if correct_fick {
+            std::array::from_fn(|a| s.shift[i][a] + s.wall[i][a])
+        } else {
+            s.wall[i]
+        };
+        let u = p.u[i];
+        for a in 0..D {
+            p.x[i][a] += dt * u[a] + s.shift[i][a] + s.wall[i][a];
+        }
+        if d.iter().any(|&v| v != 0.0) {
             for a in 0..D {
                 p.u[i][a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
             }
             p.p[i] += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
         }
     }
-    for i in 0..n {
-        if p.role[i].is_fluid() {
-            for a in 0..D {
-                p.x[i][a] += s.shift[i][a];
-            }
-        }
-    }
     boundary.confine(p)?;
-    Ok(max_shift)
+    Ok(Moved {
+        max_shift,
+        wall_pushes,
+    })
 }

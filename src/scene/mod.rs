@@ -24,7 +24,8 @@ use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::flow::{
-    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
+    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, StabilityGuard,
+    TimeStepLimits, VolumeRule,
 };
 use crate::kernel::Weight;
 use crate::neighbors::NeighborConfig;
@@ -99,7 +100,10 @@ impl Default for FlowConfig {
             viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
-            limits: TimeStepLimits::default(),
+            limits: TimeStepLimits {
+                guard: StabilityGuard::blow_up(),
+                ..TimeStepLimits::default()
+            },
             solve: SolveParams::default(),
         }
     }
