@@ -48,8 +48,9 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
-    /// The displacement that brings a point `x` to at least `margin` inside every wall
-    /// (zero when it already is, and for boundaries without walls). Moving particles use it as
+    /// The displacement that brings a point `x` that is inside the domain to at least `margin`
+    /// inside every wall (zero when it already is, when it has crossed a wall — a step too
+    /// large, which [`confine`](Self::confine) reports — and for boundaries without walls). Moving particles use it as
     /// the wall part of their shift: a particle the flow carries closer than `margin` to a wall
     /// is moved back along the wall normal, and its velocity and pressure are re-interpolated to
     /// the new position like any shifted particle's.
@@ -410,7 +411,8 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         let mut d = [0.0; D];
         for w in &self.walls {
             let s = w.distance(x);
-            if s < margin {
+            // a point on or beyond the wall has crossed it: not moved (confine reports it)
+            if s > 0.0 && s < margin {
                 d[w.axis] += (margin - s) * w.inward;
             }
         }

@@ -816,10 +816,8 @@ fn the_default_guard_names_a_blow_up_within_a_few_steps_of_its_onset() {
         }
         assert!(sim.steps < 1000, "no blow-up detected");
     };
-    assert!(
-        growing >= 1 && growing <= 6,
-        "{growing} growing steps before: {err}"
-    );
+    // named at the latest a few steps after the energy starts to grow
+    assert!(growing <= 5, "{growing} growing steps before: {err}");
     match &err {
         Error::Stability(StabilityError::BlowUp { quantity, .. }) => {
             assert!(
