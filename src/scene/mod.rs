@@ -74,6 +74,8 @@ pub struct FlowConfig {
     pub shifting: Option<Shifting>,
     /// Volumes.
     pub volumes: VolumeRule,
+    /// Pair weights (`"plain"` or `"moment"`).
+    pub pair_weights: crate::pair_weights::PairWeights,
     /// Time-step limits.
     pub limits: TimeStepLimits,
     /// Linear solver.
@@ -98,6 +100,7 @@ impl Default for FlowConfig {
             viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
+            pair_weights: Default::default(),
             limits: TimeStepLimits::default(),
             solve: SolveParams::default(),
         }
@@ -197,6 +200,7 @@ impl FlowConfig {
                 None
             },
             volumes: self.volumes,
+            pair_weights: self.pair_weights,
             dx: self.dx(),
         }
     }
@@ -251,6 +255,7 @@ config_fields!(FlowConfig {
     viscous_theta,
     shifting,
     volumes,
+    pair_weights,
     limits,
     solve
 });
