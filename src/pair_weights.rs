@@ -696,7 +696,9 @@ impl Precond {
                         row.push((o, -a));
                     }
                 }
-                row.push((u as u32, diag * (1.0 + 1e-8) + rows.vol[u] * eps[0]));
+                // (shifted: the λ block is singular in a periodic box, and the V-cycle of a
+                // singular matrix is not a usable SPD preconditioner)
+                row.push((u as u32, diag * (1.0 + 1e-3) + rows.vol[u] * eps[0]));
                 row.sort_unstable_by_key(|e| e.0);
                 let mut last = u32::MAX;
                 for &(c, v) in &row {
