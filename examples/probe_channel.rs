@@ -20,9 +20,9 @@ use gpm::geometry::{jitter, lattice};
 use gpm::kernel::Weight;
 use gpm::neighbors::NeighborConfig;
 use gpm::pair_weights::{MomentPreconditioner, MomentReport, MomentWeights, PairWeights};
-use gpm::setup::{prepare_with, update_with};
 use gpm::particles::{Particles, Role};
 use gpm::projection::{ProjectionParams, Scheme};
+use gpm::setup::{prepare_with, update_with};
 
 fn arg<T: std::str::FromStr>(args: &[String], key: &str, default: T) -> T
 where
@@ -169,9 +169,9 @@ fn speed(
     let fluid = p.role.iter().filter(|r| r.is_fluid()).count();
     let mut shift = vec![[0.0; 2]; fluid];
     jitter(&mut shift, 0.05 * dx, 99);
-    for i in 0..fluid {
-        p.x[i][0] += shift[i][0];
-        p.x[i][1] = (p.x[i][1] + shift[i][1]).clamp(0.01 * dx, 1.0 - 0.01 * dx);
+    for (x, s) in p.x.iter_mut().zip(&shift) {
+        x[0] += s[0];
+        x[1] = (x[1] + s[1]).clamp(0.01 * dx, 1.0 - 0.01 * dx);
     }
     update_with(&mut p, &walls, &mut nl, vr, mw, &mut state)?;
     show("warm after 0.05 dx move", state.last_report().unwrap());

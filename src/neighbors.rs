@@ -356,7 +356,10 @@ impl<const D: usize> NeighborList<D> {
                     return Err(InputError::parameter(
                         "pair factor",
                         f,
-                        format!("pair ({i}, {}): must be positive and finite", self.indices[k]),
+                        format!(
+                            "pair ({i}, {}): must be positive and finite",
+                            self.indices[k]
+                        ),
                     ));
                 }
                 let j = self.indices[k] as usize;

@@ -81,7 +81,9 @@ impl std::str::FromStr for PairWeights {
         match s.trim().to_ascii_lowercase().as_str() {
             "plain" => Ok(PairWeights::Plain),
             "moment" => Ok(PairWeights::Moment),
-            _ => Err(format!("unknown pair weights '{s}': expected plain or moment")),
+            _ => Err(format!(
+                "unknown pair weights '{s}': expected plain or moment"
+            )),
         }
     }
 }
@@ -332,7 +334,9 @@ impl<const D: usize> MomentWeights<D> {
         boundary: &dyn Boundary<D>,
     ) -> Result<(Vec<f64>, MomentReport), Error> {
         let t0 = Instant::now();
-        self.params.validate().map_err(|e| e.under("pair_weights"))?;
+        self.params
+            .validate()
+            .map_err(|e| e.under("pair_weights"))?;
         let n = nl.len();
         if vol.len() != n || role.len() != n {
             return Err(InputError::LengthMismatch {
@@ -373,10 +377,9 @@ impl<const D: usize> MomentWeights<D> {
                     let j = nl.neighbor(k);
                     let d: [f64; D] = std::array::from_fn(|a| nl.dx()[k][a] / h);
                     let nd: [f64; D] = std::array::from_fn(|a| -d[a]);
-                    // in index order, so that f_ij = f_ji bit for bit
+                    // f_ij = f_ji bit for bit: x_ij = −x_ji exactly and + commutes
                     let (si, sj) = (dot(&zall[i], &feat(&d), m), dot(&zall[j], &feat(&nd), m));
-                    let s = if i < j { si + sj } else { sj + si };
-                    s.exp()
+                    (si + sj).exp()
                 })
             })
             .collect();
@@ -511,7 +514,14 @@ fn weights(rows: &Rows, z: &[[f64; M]], m: usize, w: &mut Vec<f64>) {
 }
 
 /// `Φ(z)` for weights `w` at `z`.
-fn objective(rows: &Rows, z: &[[f64; M]], w: &[f64], eps: &[f64; M], t: &[f64; M], m: usize) -> f64 {
+fn objective(
+    rows: &Rows,
+    z: &[[f64; M]],
+    w: &[f64],
+    eps: &[f64; M],
+    t: &[f64; M],
+    m: usize,
+) -> f64 {
     let pairs: f64 = w.par_iter().zip(&rows.half).map(|(w, h)| w * h).sum();
     let lin: f64 = (0..z.len())
         .into_par_iter()
@@ -553,7 +563,14 @@ fn gradient(
 }
 
 /// `(H v)_i = Σ_k w_k φ_k (φ_k·v_i + ψ_k·v_{o(k)}) + ω_i ε∘v_i`.
-fn hess_apply(rows: &Rows, w: &[f64], eps: &[f64; M], m: usize, v: &[[f64; M]], out: &mut [[f64; M]]) {
+fn hess_apply(
+    rows: &Rows,
+    w: &[f64],
+    eps: &[f64; M],
+    m: usize,
+    v: &[[f64; M]],
+    out: &mut [[f64; M]],
+) {
     out.par_iter_mut().enumerate().for_each(|(u, o)| {
         let mut acc = [0.0; M];
         for k in rows.offsets[u]..rows.offsets[u + 1] {
@@ -573,7 +590,10 @@ fn hess_apply(rows: &Rows, w: &[f64], eps: &[f64; M], m: usize, v: &[[f64; M]], 
 /// Cholesky inverse of the leading `m × m` block of `a` (shifted when not positive definite).
 fn spd_inverse(a: &[[f64; M]; M], lo: usize, hi: usize) -> [[f64; M]; M] {
     let n = hi - lo;
-    let tr: f64 = (lo..hi).map(|q| a[q][q].abs()).sum::<f64>().max(f64::MIN_POSITIVE);
+    let tr: f64 = (lo..hi)
+        .map(|q| a[q][q].abs())
+        .sum::<f64>()
+        .max(f64::MIN_POSITIVE);
     let mut shift = 0.0;
     loop {
         let mut l = [[0.0; M]; M];
@@ -621,7 +641,11 @@ fn spd_inverse(a: &[[f64; M]; M], lo: usize, hi: usize) -> [[f64; M]; M] {
             }
             return inv;
         }
-        shift = if shift == 0.0 { 1e-10 * tr } else { shift * 10.0 };
+        shift = if shift == 0.0 {
+            1e-10 * tr
+        } else {
+            shift * 10.0
+        };
     }
 }
 
@@ -650,7 +674,14 @@ impl ScalarCsr {
 }
 
 impl Precond {
-    fn new(rows: &Rows, w: &[f64], eps: &[f64; M], m: usize, d: usize, kind: MomentPreconditioner) -> Self {
+    fn new(
+        rows: &Rows,
+        w: &[f64],
+        eps: &[f64; M],
+        m: usize,
+        d: usize,
+        kind: MomentPreconditioner,
+    ) -> Self {
         let nf = rows.particle.len();
         let amg_on = kind == MomentPreconditioner::Amg;
         let blocks: Vec<[[f64; M]; M]> = (0..nf)
@@ -895,20 +926,20 @@ fn line_search(
     }
     let mut alpha = 1.0;
     for _ in 0..40 {
-            for u in 0..nf {
-                for q in 0..m {
-                    zt[u][q] = z[u][q] + alpha * dz[u][q];
-                }
+        for u in 0..nf {
+            for q in 0..m {
+                zt[u][q] = z[u][q] + alpha * dz[u][q];
             }
-            weights(rows, zt, m, w);
-            let phi = objective(rows, zt, w, eps, t, m);
-            // (with a rounding allowance: near the minimum Φ changes by less than its ulp)
-            if phi.is_finite() && phi <= *phi0 + 1e-4 * alpha * slope + 1e-14 * phi0.abs() {
-                *phi0 = phi;
-                return true;
-            }
-            alpha *= 0.5;
         }
+        weights(rows, zt, m, w);
+        let phi = objective(rows, zt, w, eps, t, m);
+        // (with a rounding allowance: near the minimum Φ changes by less than its ulp)
+        if phi.is_finite() && phi <= *phi0 + 1e-4 * alpha * slope + 1e-14 * phi0.abs() {
+            *phi0 = phi;
+            return true;
+        }
+        alpha *= 0.5;
+    }
     weights(rows, z, m, w);
     false
 }

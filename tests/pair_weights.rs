@@ -3,6 +3,8 @@
 //! the operators adjoint and the folded Poisson matrix symmetric positive definite; on a
 //! lattice they change nothing.
 
+#![allow(clippy::needless_range_loop)] // index loops over paired arrays read clearer here
+
 use gpm::boundary::{Boundary, NoBoundary, PeriodicBox, Walls};
 use gpm::geometry::{jitter, lattice};
 use gpm::kernel::Weight;
@@ -51,7 +53,12 @@ fn setup(
     boundary: &dyn Boundary<2>,
     walls: bool,
     params: MomentParams,
-) -> (NeighborList<2>, NeighborList<2>, Particles<2>, MomentWeights<2>) {
+) -> (
+    NeighborList<2>,
+    NeighborList<2>,
+    Particles<2>,
+    MomentWeights<2>,
+) {
     let mut p = particles(jit, 11, walls);
     let plain = prepare(&mut p, boundary, config(), VolumeRule::NumberDensity).unwrap();
     let mut state = MomentWeights::new(params);
@@ -84,7 +91,10 @@ fn check_symmetric(plain: &NeighborList<2>, nl: &NeighborList<2>) -> (f64, f64) 
             let j = nl.neighbor(k);
             let f = nl.wr2()[k] / plain.wr2()[k];
             let r = nl.row(j);
-            let back = r.clone().find(|&kk| nl.neighbor(kk) == i).expect("reverse pair");
+            let back = r
+                .clone()
+                .find(|&kk| nl.neighbor(kk) == i)
+                .expect("reverse pair");
             let fb = nl.wr2()[back] / plain.wr2()[back];
             assert!((f - fb).abs() <= 1e-12 * f, "pair ({i},{j}): {f} vs {fb}");
             assert!((nl.w()[k] / plain.w()[k] - f).abs() <= 1e-12 * f);
@@ -112,7 +122,10 @@ fn operators_exact(nl: &NeighborList<2>, p: &Particles<2>, rows: &[usize], tol: 
     // evaluated on the unwrapped displacement, so use fields of x_j − x_i via the list)
     let a = [0.4, -0.9];
     let lin: Vec<f64> = p.x.iter().map(|x| a[0] * x[0] + a[1] * x[1]).collect();
-    let quad: Vec<f64> = p.x.iter().map(|x| x[0] * x[0] + 3.0 * x[1] * x[1] - 0.5 * x[0] * x[1]).collect();
+    let quad: Vec<f64> =
+        p.x.iter()
+            .map(|x| x[0] * x[0] + 3.0 * x[1] * x[1] - 0.5 * x[0] * x[1])
+            .collect();
     let g = grad_diff(nl, &p.vol, &lin);
     let l = laplacian(nl, &p.vol, &quad);
     for &i in rows {
@@ -120,7 +133,11 @@ fn operators_exact(nl: &NeighborList<2>, p: &Particles<2>, rows: &[usize], tol: 
         for c in 0..2 {
             assert!((g[i][c] - a[c]).abs() < tol, "row {i}: grad {:?}", g[i]);
         }
-        assert!((l[i] - 8.0).abs() < tol * 8.0, "row {i}: laplacian {}", l[i]);
+        assert!(
+            (l[i] - 8.0).abs() < tol * 8.0,
+            "row {i}: laplacian {}",
+            l[i]
+        );
     }
 }
 
@@ -128,12 +145,21 @@ fn operators_exact(nl: &NeighborList<2>, p: &Particles<2>, rows: &[usize], tol: 
 fn lattice_factors_are_one() {
     for (boundary, walls) in [
         (&periodic() as &dyn Boundary<2>, false),
-        (&Walls::<2>::closed_box([0.0, 0.0], [1.0, 1.0]) as &dyn Boundary<2>, true),
-        (&Walls::<2>::channel([0.0, 0.0], [1.0, 1.0]) as &dyn Boundary<2>, true),
+        (
+            &Walls::<2>::closed_box([0.0, 0.0], [1.0, 1.0]) as &dyn Boundary<2>,
+            true,
+        ),
+        (
+            &Walls::<2>::channel([0.0, 0.0], [1.0, 1.0]) as &dyn Boundary<2>,
+            true,
+        ),
     ] {
         let (plain, nl, _, state) = setup(0.0, boundary, walls, MomentParams::default());
         let (lo, hi) = check_symmetric(&plain, &nl);
-        assert!((lo - 1.0).abs() <= 1e-12 && (hi - 1.0).abs() <= 1e-12, "{lo} {hi}");
+        assert!(
+            (lo - 1.0).abs() <= 1e-12 && (hi - 1.0).abs() <= 1e-12,
+            "{lo} {hi}"
+        );
         assert_eq!(state.last_report().unwrap().newton, 0);
     }
 }
@@ -161,15 +187,22 @@ fn adjoint_on_periodic_box() {
     for jit in [0.1, 0.3] {
         let (_, nl, p, _) = setup(jit, &periodic(), false, MomentParams::default());
         let n = p.len();
-        let pr: Vec<f64> = (0..n).map(|i| (7.0 * p.x[i][0]).sin() + p.x[i][1].cos()).collect();
+        let pr: Vec<f64> = (0..n)
+            .map(|i| (7.0 * p.x[i][0]).sin() + p.x[i][1].cos())
+            .collect();
         let e: Vec<[f64; 2]> = (0..n)
             .map(|i| [(3.0 * p.x[i][1]).sin(), (5.0 * p.x[i][0]).cos()])
             .collect();
         let g = grad_diff(&nl, &p.vol, &pr);
         let div = div_sum(&nl, &p.vol, &e);
-        let lhs: f64 = (0..n).map(|i| p.vol[i] * (g[i][0] * e[i][0] + g[i][1] * e[i][1])).sum();
+        let lhs: f64 = (0..n)
+            .map(|i| p.vol[i] * (g[i][0] * e[i][0] + g[i][1] * e[i][1]))
+            .sum();
         let rhs: f64 = -(0..n).map(|i| p.vol[i] * pr[i] * div[i]).sum::<f64>();
-        assert!((lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
+        assert!(
+            (lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0),
+            "{lhs} vs {rhs}"
+        );
     }
 }
 
@@ -220,7 +253,10 @@ fn folded_poisson_matrix_symmetric_and_spd() {
         // K + 11ᵀ·scale/n is positive definite iff K is PSD with kernel the constants
         // (connected floating box): Cholesky of the shifted matrix.
         let m = nalgebra::DMatrix::from_fn(n, n, |u, v| dense[u][v] + scale / n as f64);
-        assert!(m.cholesky().is_some(), "jitter {jit}: not positive definite");
+        assert!(
+            m.cholesky().is_some(),
+            "jitter {jit}: not positive definite"
+        );
         // and K itself has the constants in its kernel
         for row in dense.iter() {
             let s: f64 = row.iter().sum();
@@ -287,11 +323,20 @@ fn plain_does_nothing_and_parses() {
     let g = nl.generation();
     let w = nl.wr2().to_vec();
     let mut state = MomentWeights::<2>::default();
-    assert!(state.apply(PairWeights::Plain, &mut nl, &p, &NoBoundary).unwrap().is_none());
+    assert!(state
+        .apply(PairWeights::Plain, &mut nl, &p, &NoBoundary)
+        .unwrap()
+        .is_none());
     assert_eq!(nl.generation(), g);
     assert_eq!(nl.wr2(), &w[..]);
-    assert_eq!(serde_json::to_string(&PairWeights::Moment).unwrap(), "\"moment\"");
-    assert_eq!(serde_json::from_str::<PairWeights>("\"plain\"").unwrap(), PairWeights::Plain);
+    assert_eq!(
+        serde_json::to_string(&PairWeights::Moment).unwrap(),
+        "\"moment\""
+    );
+    assert_eq!(
+        serde_json::from_str::<PairWeights>("\"plain\"").unwrap(),
+        PairWeights::Plain
+    );
     // bad factors are typed errors
     assert!(nl.scale_pair_weights(&[1.0]).is_err());
     let mut f = vec![1.0; nl.n_pairs()];
@@ -300,4 +345,19 @@ fn plain_does_nothing_and_parses() {
     f[0] = f64::NAN;
     assert!(nl.scale_pair_weights(&f).is_err());
     assert_eq!(nl.generation(), g);
+}
+
+#[test]
+fn scene_config_key_reaches_flow_params() {
+    use gpm::scene::cavity::CavityConfig;
+    use gpm::scene::config_from_value;
+    let v = serde_json::json!({ "n": 16, "pair_weights": "moment" });
+    let c: CavityConfig = config_from_value(v).unwrap();
+    assert_eq!(c.pair_weights, PairWeights::Moment);
+    assert_eq!(c.flow_params::<2>(1.0).pair_weights, PairWeights::Moment);
+    let d: CavityConfig = config_from_value(serde_json::json!({ "n": 16 })).unwrap();
+    assert_eq!(d.pair_weights, PairWeights::Plain);
+    assert!(
+        config_from_value::<CavityConfig>(serde_json::json!({ "pair_weights": "nope" })).is_err()
+    );
 }

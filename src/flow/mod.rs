@@ -325,7 +325,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             }
         }
         let (kind, p) = (self.params.pair_weights, &self.particles);
-        self.pair_weights.apply(kind, &mut self.nl, p, &self.boundary)?;
+        self.pair_weights
+            .apply(kind, &mut self.nl, p, &self.boundary)?;
         Ok(())
     }
 
