@@ -681,6 +681,7 @@ impl Precond {
         m: usize,
         d: usize,
         kind: MomentPreconditioner,
+        prev: Option<Amg>,
     ) -> Self {
         let nf = rows.particle.len();
         let amg_on = kind == MomentPreconditioner::Amg;
@@ -748,7 +749,14 @@ impl Precond {
                 cols,
                 values,
             };
-            let amg = Amg::build(csr.view(), AmgParams::default());
+            // the pattern is the same at every Newton step: refresh the values only
+            let amg = match prev {
+                Some(mut a) if a.n() == nf && a.stats().nnz.first() == Some(&csr.cols.len()) => {
+                    a.refresh(csr.view());
+                    a
+                }
+                _ => Amg::build(csr.view(), AmgParams::default()),
+            };
             (amg, csr)
         });
         Precond { blocks, amg, d, m }
@@ -818,6 +826,7 @@ fn newton(
         }
         best
     };
+    let mut hierarchy: Option<Amg> = None;
     for step in 0..=p.max_newton {
         let g = gradient(rows, z, &w, &eps, &t, m);
         let (res, wu) = worst(&g);
@@ -837,8 +846,10 @@ fn newton(
                 reason: "Newton step limit",
             });
         }
-        // PCG on H δ = −g
-        let mut pre = Precond::new(rows, &w, &eps, m, d, p.preconditioner);
+        // PCG on H δ = −g to the relative residual η (inexact Newton: loose while the moment
+        // residual is large, cg_rel_tol near the solution)
+        let eta = (0.1 * res).clamp(p.cg_rel_tol, 1e-2);
+        let mut pre = Precond::new(rows, &w, &eps, m, d, p.preconditioner, hierarchy.take());
         let mut dz = vec![[0.0; M]; nf];
         let mut r: Vec<[f64; M]> = g.iter().map(|x| x.map(|v| -v)).collect();
         let mut y = vec![[0.0; M]; nf];
@@ -864,7 +875,7 @@ fn newton(
                     }
                 });
             cg_total += 1;
-            if vdot(&r, &r, m).sqrt() <= p.cg_rel_tol * r0 {
+            if vdot(&r, &r, m).sqrt() <= eta * r0 {
                 break;
             }
             pre.apply(&r, &mut y);
@@ -894,6 +905,7 @@ fn newton(
                 reason: "line search found no decrease",
             });
         }
+        hierarchy = pre.amg.take().map(|(a, _)| a);
         z.copy_from_slice(&zt);
     }
     Err(PairWeightError::NoConvergence {
