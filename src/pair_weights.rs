@@ -28,7 +28,8 @@
 //! dual of a maximum-entropy (Kullback–Leibler) problem. `∇_{z_i} Φ = ω_i (M_i − t + ε∘z_i)`
 //! with the moments `M_i = Σ_j ω_j F̃_ij φ(x̂_ji)` (in units of `h`). It is minimised by Newton's
 //! method with Armijo backtracking; each Newton system `H δ = −∇Φ` (SPD, `d + d(d+1)/2`
-//! unknowns per row) is solved by preconditioned conjugate gradients.
+//! unknowns per row) is solved by preconditioned conjugate gradients to the relative residual
+//! `η = clamp(0.1 r, cg_rel_tol, 10⁻²)` (`r` the current moment residual: inexact Newton).
 //!
 //! **Regularisation.** `ε_q` (the Tikhonov term, [`MomentParams::reg_first`] and
 //! [`MomentParams::reg_second`]) relaxes the conditions to `M_i − t = −ε∘z_i`: a row whose
@@ -47,7 +48,9 @@
 //! hundreds to thousands of iterations. [`MomentPreconditioner::Amg`] applies one
 //! smoothed-aggregation V-cycle ([`crate::poisson::amg`]) of the scalar Laplacian
 //! `A_ij = −Σ ω_i ω_j F̃_ij |x̂_ji|²/d` to each `λ` component and the inverse of the `Λ–Λ`
-//! diagonal block to the rest.
+//! diagonal block to the rest (the hierarchy is built at the first Newton step of a call and
+//! refreshed, same aggregates, at the later ones). This module sits in layer 3, beside
+//! [`crate::poisson`], for that reason.
 //!
 //! **Warm start.** [`MomentWeights`] keeps the multipliers of the last call and starts from
 //! them when the fluid particles are the same (moving particles change them slowly).
@@ -115,7 +118,7 @@ pub struct MomentParams {
     pub max_newton: usize,
     /// Most conjugate-gradient iterations per Newton step (default 2000).
     pub max_cg: usize,
-    /// Relative residual of each Newton system (default 10⁻⁴).
+    /// Tightest relative residual of the Newton systems (default 10⁻⁴; the loosest is 10⁻²).
     pub cg_rel_tol: f64,
     /// Preconditioner (default AMG).
     pub preconditioner: MomentPreconditioner,
@@ -595,7 +598,7 @@ fn spd_inverse(a: &[[f64; M]; M], lo: usize, hi: usize) -> [[f64; M]; M] {
         .sum::<f64>()
         .max(f64::MIN_POSITIVE);
     let mut shift = 0.0;
-    loop {
+    for _ in 0..40 {
         let mut l = [[0.0; M]; M];
         let mut ok = true;
         'outer: for r in 0..n {
@@ -647,6 +650,12 @@ fn spd_inverse(a: &[[f64; M]; M], lo: usize, hi: usize) -> [[f64; M]; M] {
             shift * 10.0
         };
     }
+    // not finite: the identity (the Newton iteration reports the non-finite row)
+    let mut id = [[0.0; M]; M];
+    for (q, row) in id.iter_mut().enumerate().take(hi).skip(lo) {
+        row[q] = 1.0;
+    }
+    id
 }
 
 /// The preconditioner of one Newton step.

@@ -361,3 +361,30 @@ fn scene_config_key_reaches_flow_params() {
         config_from_value::<CavityConfig>(serde_json::json!({ "pair_weights": "nope" })).is_err()
     );
 }
+
+/// A free cloud (no walls, no periodicity): the edge rows have every neighbour on one side, so
+/// the first moment cannot vanish; the computation stops with a typed error naming a particle.
+#[test]
+fn infeasible_rows_are_a_typed_error() {
+    let mut p = particles(0.1, 5, true);
+    let params = MomentParams {
+        max_newton: 8,
+        ..Default::default()
+    };
+    let mut state = MomentWeights::new(params);
+    let r = prepare_with(
+        &mut p,
+        &NoBoundary,
+        config(),
+        VolumeRule::NumberDensity,
+        PairWeights::Moment,
+        &mut state,
+    );
+    match r {
+        Err(gpm::Error::PairWeights(e)) => {
+            let msg = e.to_string();
+            assert!(msg.contains("particle"), "{msg}");
+        }
+        other => panic!("expected a pair-weight error, got {:?}", other.map(|_| ())),
+    }
+}
