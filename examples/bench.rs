@@ -140,6 +140,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         integrator: Integrator::Ab2,
         shifting: None,
         volumes: VolumeRule::NumberDensity,
+        pair_weights: Default::default(),
         dx,
     };
     let skin = if c.reuse { 0.3 } else { 0.0 };

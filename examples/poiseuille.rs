@@ -16,7 +16,8 @@
 //! over the fluid particles, `rms_rel_error`, `centre_speed_ratio`, `wall_seconds`, the monitor's
 //! ranges and the configuration), `profile.png` and `run.mcap`.
 //!
-//! `--study` runs jitter 0, 0.1, 0.3 × the three pressure schemes and writes `study.csv`.
+//! `--study` runs jitter 0, 0.1, 0.3 × the three pressure schemes × plain and moment pair
+//! weights and writes `study.csv`.
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -56,6 +57,9 @@ struct Args {
     /// Pressure scheme: non-incremental, incremental, rotational.
     #[arg(long, default_value = "rotational")]
     scheme: Scheme,
+    /// Pair weights: plain (GPM's w/r²) or moment (moment-consistent, `gpm::pair_weights`).
+    #[arg(long, default_value = "plain")]
+    weights: gpm::pair_weights::PairWeights,
     /// Particle frame: eulerian (fixed particles) or lagrangian.
     #[arg(long, default_value = "eulerian")]
     motion: Motion,
@@ -92,6 +96,7 @@ fn config(a: &Args) -> Result<ChannelConfig> {
         c.t_end = a.t_end;
         c.scheme = a.scheme;
         c.motion = a.motion;
+        c.pair_weights = a.weights;
         c.scene.body_force = a.g;
         c.scene.jitter = a.jitter;
         c.scene.seed = a.seed;
@@ -111,13 +116,17 @@ fn study(a: &Args) -> Result<ExitCode> {
     let mut f = std::fs::File::create(&path)?;
     writeln!(
         f,
-        "jitter,scheme,n,max_rel_error,rms_rel_error,centre_speed_ratio,c0_min,c0_max,max_stability_ratio,max_correction_ratio,steps,wall_seconds,error"
+        "jitter,weights,scheme,n,max_rel_error,rms_rel_error,centre_speed_ratio,c0_min,c0_max,max_stability_ratio,max_correction_ratio,steps,wall_seconds,error"
     )?;
     println!(
-        "{:>6} {:>16} {:>12} {:>12} {:>8} {:>8} {:>8} {:>8}",
-        "jitter", "scheme", "max err/umax", "rms err", "centre", "c0 max", "ratio", "s"
+        "{:>6} {:>7} {:>16} {:>12} {:>12} {:>8} {:>8} {:>8} {:>8}",
+        "jitter", "weights", "scheme", "max err/umax", "rms err", "centre", "c0 max", "ratio", "s"
     );
-    for jitter in [0.0, 0.1, 0.3] {
+    use gpm::pair_weights::PairWeights;
+    for (jitter, weights) in [0.0, 0.1, 0.3]
+        .into_iter()
+        .flat_map(|j| [(j, PairWeights::Plain), (j, PairWeights::Moment)])
+    {
         for scheme in [
             Scheme::NonIncremental,
             Scheme::Incremental,
@@ -126,12 +135,15 @@ fn study(a: &Args) -> Result<ExitCode> {
             let mut cfg = config(a)?;
             cfg.scene.jitter = jitter;
             cfg.scheme = scheme;
+            cfg.pair_weights = weights;
+            let w = format!("{weights:?}").to_lowercase();
             match run(&cfg) {
                 Ok(r) => {
                     let e = r.errors;
                     println!(
-                        "{:>6} {:>16} {:>12.3e} {:>12.3e} {:>8.4} {:>8.4} {:>8.3} {:>8.2}",
+                        "{:>6} {:>7} {:>16} {:>12.3e} {:>12.3e} {:>8.4} {:>8.4} {:>8.3} {:>8.2}",
                         jitter,
+                        w,
                         scheme.to_string(),
                         e.max_rel_error,
                         e.rms_rel_error,
@@ -142,7 +154,7 @@ fn study(a: &Args) -> Result<ExitCode> {
                     );
                     writeln!(
                         f,
-                        "{jitter},{scheme},{},{},{},{},{},{},{},{},{},{},",
+                        "{jitter},{w},{scheme},{},{},{},{},{},{},{},{},{},{},",
                         cfg.n,
                         e.max_rel_error,
                         e.rms_rel_error,
@@ -157,8 +169,11 @@ fn study(a: &Args) -> Result<ExitCode> {
                 }
                 Err(err) => {
                     let msg = err.to_string().replace([',', '\n'], ";");
-                    println!("{jitter:>6} {:>16} failed: {msg}", scheme.to_string());
-                    writeln!(f, "{jitter},{scheme},{},,,,,,,,,,{msg}", cfg.n)?;
+                    println!(
+                        "{jitter:>6} {w:>7} {:>16} failed: {msg}",
+                        scheme.to_string()
+                    );
+                    writeln!(f, "{jitter},{w},{scheme},{},,,,,,,,,,{msg}", cfg.n)?;
                 }
             }
         }
@@ -217,11 +232,12 @@ fn single(a: &Args) -> Result<ExitCode> {
     let res = &run.result;
     let e = res.errors;
     println!(
-        "channel n {} jitter {} ({}, {}) t = {:.2} ({} steps, {:.2} s): max |u − u_exact|/u_max {:.3e}, RMS {:.3e}, centre speed {:.4} of exact",
+        "channel n {} jitter {} ({}, {}, {:?} weights) t = {:.2} ({} steps, {:.2} s): max |u − u_exact|/u_max {:.3e}, RMS {:.3e}, centre speed {:.4} of exact",
         res.n,
         res.jitter,
         cfg.scheme,
         format!("{:?}", cfg.motion).to_lowercase(),
+        cfg.pair_weights,
         res.t_end,
         res.steps,
         res.wall_seconds,

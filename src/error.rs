@@ -391,6 +391,34 @@ pub enum RecordError {
     },
 }
 
+/// Failure of the moment-consistent pair weights ([`crate::pair_weights`]): the Newton
+/// iteration on the dual problem did not bring every fluid row's moments to the tolerance.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum PairWeightError {
+    /// Newton stopped at its step limit (or its line search found no decrease) with the
+    /// (regularised) moment residual `max_q |M_iq − t_q + ε_q z_iq|` still above the tolerance.
+    #[error(
+        "moment pair weights did not converge in {newton} Newton steps: moment residual \
+         {residual:e} at particle {particle} ({reason}); raise the regularisation or max_newton"
+    )]
+    NoConvergence {
+        /// Newton steps run.
+        newton: usize,
+        /// Largest residual left.
+        residual: f64,
+        /// The worst fluid particle.
+        particle: usize,
+        /// Step limit or line search.
+        reason: &'static str,
+    },
+    /// A multiplier or factor became NaN or infinite.
+    #[error("moment pair weights: non-finite value at particle {particle}")]
+    NonFinite {
+        /// The particle.
+        particle: usize,
+    },
+}
+
 /// The crate's error: one variant per stage.
 #[derive(Debug, Error)]
 pub enum Error {
@@ -409,6 +437,9 @@ pub enum Error {
     /// Recording or replaying a run failed (or the run was interrupted on request).
     #[error(transparent)]
     Record(#[from] RecordError),
+    /// The moment-consistent pair weights could not be computed.
+    #[error(transparent)]
+    PairWeights(#[from] PairWeightError),
 }
 
 /// `Result` with the crate's [`Error`].

@@ -59,6 +59,7 @@ pub mod kernel;
 pub mod math;
 pub mod neighbors;
 pub mod operators;
+pub mod pair_weights;
 pub mod particles;
 #[cfg(feature = "cli")]
 pub mod plot;

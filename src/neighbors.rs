@@ -334,6 +334,57 @@ impl<const D: usize> NeighborList<D> {
         (&self.cand_offsets, &self.cand_indices)
     }
 
+    /// Multiplies the stored `w_h(r_ij)` and `w_h(r_ij)/r_ij²` of every pair `k` by
+    /// `factors[k]`: `F̃_ij = F_ij · f_ij` with `F = w_h/r²` (the pair weight every operator
+    /// uses), and `w̃ = F̃ r²`. The factors must be positive, finite and symmetric
+    /// (`f_ij = f_ji`, relative difference at most 10⁻⁹), so that the operators stay adjoint and
+    /// the Poisson matrix symmetric. Bumps [`generation`](Self::generation), so every cache
+    /// of values derived from the pair data refreshes. The next [`update`](Self::update)
+    /// re-measures plain weights. Used by [`crate::pair_weights`].
+    pub fn scale_pair_weights(&mut self, factors: &[f64]) -> Result<(), InputError> {
+        if factors.len() != self.indices.len() {
+            return Err(InputError::LengthMismatch {
+                field: "pair factors",
+                len: factors.len(),
+                expected: self.indices.len(),
+            });
+        }
+        for i in 0..self.len() {
+            for k in self.row(i) {
+                let f = factors[k];
+                if !(f > 0.0 && f.is_finite()) {
+                    return Err(InputError::parameter(
+                        "pair factor",
+                        f,
+                        format!(
+                            "pair ({i}, {}): must be positive and finite",
+                            self.indices[k]
+                        ),
+                    ));
+                }
+                let j = self.indices[k] as usize;
+                let rj = self.row(j);
+                let back = self.indices[rj.clone()]
+                    .binary_search(&(i as u32))
+                    .map(|p| factors[rj.start + p]);
+                let ok = back.is_ok_and(|b| (b - f).abs() <= 1e-9 * f.max(b));
+                if !ok {
+                    return Err(InputError::parameter(
+                        "pair factor",
+                        f,
+                        format!("pair ({i}, {j}): the factors are not symmetric ({back:?})"),
+                    ));
+                }
+            }
+        }
+        for (k, f) in factors.iter().enumerate() {
+            self.w[k] *= f;
+            self.wr2[k] *= f;
+        }
+        self.generation += 1;
+        Ok(())
+    }
+
     /// Forgets the candidates so that the next update searches again.
     pub fn invalidate(&mut self) {
         self.x_ref.clear();

@@ -10,6 +10,10 @@
 //!    for [`VolumeRule::Fixed`]);
 //! 5. [`Boundary::place_ghosts`], which copies the sources' volumes into the ghosts.
 //!
+//! 6. with [`PairWeights::Moment`], the moment-consistent pair weights
+//!    ([`crate::pair_weights`]), after the volumes (which use the plain `w_h`): [`prepare_with`],
+//!    [`update_with`].
+//!
 //! [`prepare`] does this once; [`update`] after the particles moved (re-making the ghosts when
 //! the list has to search again). The projection's checks
 //! ([`crate::projection::checks`]) report a configuration that skipped a step.
@@ -18,6 +22,7 @@ use crate::boundary::Boundary;
 use crate::error::Error;
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{NeighborConfig, NeighborList};
+use crate::pair_weights::{MomentWeights, PairWeights};
 use crate::particles::Particles;
 use crate::projection::checks::check_spacing;
 
@@ -76,6 +81,35 @@ pub fn prepare<const D: usize>(
     check_spacing(&nl, &particles.x)?;
     set_volumes(particles, boundary, &nl, volumes);
     Ok(nl)
+}
+
+/// [`prepare`], then the pair weights `weights` (for [`PairWeights::Moment`], computed by
+/// `state`, which keeps the multipliers for warm starts in [`update_with`]).
+pub fn prepare_with<const D: usize>(
+    particles: &mut Particles<D>,
+    boundary: &dyn Boundary<D>,
+    config: NeighborConfig<D>,
+    volumes: VolumeRule,
+    weights: PairWeights,
+    state: &mut MomentWeights<D>,
+) -> Result<NeighborList<D>, Error> {
+    let mut nl = prepare(particles, boundary, config, volumes)?;
+    state.apply(weights, &mut nl, particles, boundary)?;
+    Ok(nl)
+}
+
+/// [`update`], then the pair weights (see [`prepare_with`]).
+pub fn update_with<const D: usize>(
+    particles: &mut Particles<D>,
+    boundary: &dyn Boundary<D>,
+    nl: &mut NeighborList<D>,
+    volumes: VolumeRule,
+    weights: PairWeights,
+    state: &mut MomentWeights<D>,
+) -> Result<bool, Error> {
+    let rebuilt = update(particles, boundary, nl, volumes)?;
+    state.apply(weights, nl, particles, boundary)?;
+    Ok(rebuilt)
 }
 
 /// After the particles moved: confines them, places the ghosts, updates `nl` (re-making the

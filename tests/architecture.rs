@@ -16,6 +16,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("diagnostics", 2),
     ("boundary", 2),
     ("poisson", 3),
+    ("pair_weights", 3),
     ("projection", 4),
     ("setup", 4),
     ("time", 5),

@@ -53,6 +53,7 @@ fn flow_params(dx: f64, motion: Motion) -> FlowParams<2> {
         integrator: Integrator::Ab2,
         shifting: None,
         volumes: VolumeRule::NumberDensity,
+        pair_weights: Default::default(),
         dx,
     }
 }

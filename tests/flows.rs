@@ -212,6 +212,7 @@ fn hydrostatic_error(n: usize, scheme: Scheme) -> (f64, f64) {
         integrator: Integrator::Ab2,
         shifting: None,
         volumes: VolumeRule::NumberDensity,
+        pair_weights: Default::default(),
         dx,
     };
     let mut sim = Simulation::new(
@@ -311,6 +312,7 @@ fn poiseuille_channel_with_periodic_axis_and_walls() {
             integrator: Integrator::Ab2,
             shifting: None,
             volumes: VolumeRule::NumberDensity,
+            pair_weights: Default::default(),
             dx,
         };
         let h = 3.0 * dx;

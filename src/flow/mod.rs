@@ -77,6 +77,8 @@ pub struct FlowParams<const D: usize> {
     pub shifting: Option<Shifting>,
     /// Volumes.
     pub volumes: VolumeRule,
+    /// Pair weights, applied after every volume update ([`crate::pair_weights`]).
+    pub pair_weights: crate::pair_weights::PairWeights,
     /// Initial particle spacing `Δx` (for shift limits).
     pub dx: f64,
 }
@@ -252,6 +254,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     convection: Convection<D>,
     /// Kinetic energy after the last step (for `guard.energy_growth`).
     prev_energy: Option<f64>,
+    /// Moment pair-weight state: parameters, warm-start multipliers, last report.
+    pub pair_weights: crate::pair_weights::MomentWeights<D>,
 }
 
 impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
@@ -311,8 +315,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             stale: false,
             convection: Convection::new(),
             prev_energy: None,
+            pair_weights: Default::default(),
         };
-        sim.update_volumes();
+        sim.update_volumes()?;
         Ok(sim)
     }
 
@@ -321,7 +326,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         &self.plan
     }
 
-    fn update_volumes(&mut self) {
+    fn update_volumes(&mut self) -> Result<(), Error> {
         if self.plan.has(Stage::Volumes) {
             let v = number_density_volumes(&self.nl);
             for (i, r) in self.particles.role.iter().enumerate() {
@@ -334,6 +339,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 self.boundary.place_ghosts(&mut self.particles);
             }
         }
+        let (kind, p) = (self.params.pair_weights, &self.particles);
+        self.pair_weights
+            .apply(kind, &mut self.nl, p, &self.boundary)?;
+        Ok(())
     }
 
     /// Forces the next [`advance`](Self::advance) to search neighbours again, re-create the
@@ -361,7 +370,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             rebuilt = true;
         }
         self.nl.update(&self.particles.x)?;
-        self.update_volumes();
+        self.update_volumes()?;
         Ok(rebuilt)
     }
 

@@ -76,6 +76,8 @@ pub struct FlowConfig {
     pub shifting: Option<Shifting>,
     /// Volumes.
     pub volumes: VolumeRule,
+    /// Pair weights (`"plain"` or `"moment"`).
+    pub pair_weights: crate::pair_weights::PairWeights,
     /// Time-step limits.
     pub limits: TimeStepLimits,
     /// Linear solver.
@@ -100,6 +102,7 @@ impl Default for FlowConfig {
             viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
+            pair_weights: Default::default(),
             limits: TimeStepLimits {
                 guard: StabilityGuard::blow_up(),
                 ..TimeStepLimits::default()
@@ -202,6 +205,7 @@ impl FlowConfig {
                 None
             },
             volumes: self.volumes,
+            pair_weights: self.pair_weights,
             dx: self.dx(),
         }
     }
@@ -256,6 +260,7 @@ config_fields!(FlowConfig {
     viscous_theta,
     shifting,
     volumes,
+    pair_weights,
     limits,
     solve
 });
