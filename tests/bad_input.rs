@@ -540,7 +540,9 @@ fn solver_non_convergence_carries_its_iterations_and_residual() {
 // ---------------------------------------------------------------------------------------------
 // invalid configuration
 
-fn config_key<T: serde::de::DeserializeOwned + std::fmt::Debug>(json: &str) -> (String, String) {
+fn config_key<T: serde::de::DeserializeOwned + serde::Serialize + Default + std::fmt::Debug>(
+    json: &str,
+) -> (String, String) {
     match config_from_json::<T>(json) {
         Err(InputError::Config { key, reason }) => (key, reason),
         other => panic!("{json}: expected a configuration error, got {other:?}"),
