@@ -99,7 +99,7 @@ fn corrupt_projection_inputs_are_errors_not_panics() {
                     k[1] = 2;
                     m.role_kind = Array::from_u8(&k);
                 }),
-                Some("particle 1"),
+                Some("ghost particle"),
             ),
             (
                 "ghost walls 0xff",
@@ -340,10 +340,10 @@ fn a_failed_run_never_replaces_a_good_recording() {
     assert_eq!(s.path.as_deref(), Some(path.as_path()));
     drop(good.lock);
     let before = std::fs::read(&path).unwrap();
-    // a run that fails at its third step (the observer's error)
+    // a run that fails at its second step (the observer's error; the run has 2 steps)
     let failed = run_recorded(&cfg, &path, opts, &cfg.record_header(), |_| {}, |rep, _| {
-        if rep.step == 3 {
-            Err(InputError::parameter("test", 3.0, "failing on purpose").into())
+        if rep.step == 2 {
+            Err(InputError::parameter("test", 2.0, "failing on purpose").into())
         } else {
             Ok(ControlFlow::Continue(()))
         }
@@ -353,7 +353,7 @@ fn a_failed_run_never_replaces_a_good_recording() {
     let s = failed.record.unwrap();
     assert_eq!(s.path.as_deref(), Some(failed_path(&path).as_path()));
     assert_eq!(std::fs::read(&path).unwrap(), before, "the good recording is untouched");
-    assert_eq!(Replay::open(&failed_path(&path)).unwrap().steps.len(), 3);
+    assert_eq!(Replay::open(&failed_path(&path)).unwrap().steps.len(), 2);
     assert!(!partial_path(&path).exists());
     drop(failed.lock);
     // a run that fails before its first step leaves nothing
