@@ -1055,7 +1055,9 @@ fn cli_run_failing(config: serde_json::Value, needles: &[&str]) -> (String, Repl
         ],
     );
     let stderr = assert_clean_failure(&o, needles);
-    let path = out.join("run.mcap");
+    // a failed run keeps its recording aside (run.mcap is only ever a finished run's)
+    let path = out.join("run.failed.mcap");
+    assert!(!out.join("run.mcap").exists());
     assert!(stderr.contains(&path.display().to_string()), "{stderr}");
     let replay = Replay::open(&path).unwrap();
     assert!(replay.scan.complete, "the recording was not finished");
@@ -1170,7 +1172,7 @@ fn examples_report_bad_input_cleanly() {
         a.extend(args.iter().copied());
         assert_clean_failure(&run(&tg, &a), &needles);
     }
-    // a Lagrangian cavity with a CFL number far too large: particles escape in the first
+    // a Lagrangian cavity at the largest CFL number (1): particles escape in the first
     // steps; the example names the particle and finishes its recording, which reads back
     let o = run(
         &cav,
@@ -1183,13 +1185,13 @@ fn examples_report_bad_input_cleanly() {
             "--motion",
             "lagrangian",
             "--cfl",
-            "40",
+            "1",
             "--t-end",
             "5",
         ],
     );
     assert_clean_failure(&o, &["cavity run failed", "particle", "outside the domain"]);
-    let r = Replay::open(Path::new(out).join("run.mcap")).unwrap();
+    let r = Replay::open(Path::new(out).join("run.failed.mcap")).unwrap();
     assert!(r.scan.complete);
     assert!(r.steps.len() <= 3);
 }

@@ -356,16 +356,17 @@ fn a_failed_run_never_replaces_a_good_recording() {
     assert_eq!(Replay::open(&failed_path(&path)).unwrap().steps.len(), 2);
     assert!(!partial_path(&path).exists());
     drop(failed.lock);
-    // a run that fails before its first step leaves nothing
-    std::fs::remove_file(failed_path(&path)).unwrap();
+    // a run that fails before its first step keeps its configuration aside too
     let bad = cfg.clone().with(|c| c.t_end = 1e-13);
     let failed = run_recorded(&bad, &path, opts, &bad.record_header(), |_| {}, |_, _| {
         Ok(ControlFlow::Continue(()))
     })
     .unwrap();
     assert!(failed.run.is_err());
-    assert_eq!(failed.record.unwrap().path, None);
-    assert!(!failed_path(&path).exists() && !partial_path(&path).exists());
+    assert_eq!(failed.record.unwrap().path, Some(failed_path(&path)));
+    let r = Replay::open(&failed_path(&path)).unwrap();
+    assert!(r.steps.is_empty() && r.config.is_some() && r.scan.complete);
+    assert!(!partial_path(&path).exists());
     assert_eq!(std::fs::read(&path).unwrap(), before);
 }
 

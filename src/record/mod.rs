@@ -704,21 +704,16 @@ impl Recorder {
     }
 
     /// [`finish`](Self::finish) for a run that failed: the file is finished (every step before
-    /// the failure reads back) and kept as [`output::failed_path`] of the target
-    /// (`run.failed.mcap`), so that a good earlier recording at the target is not replaced; with
-    /// no step recorded it is removed (`path` is then `None`).
+    /// the failure reads back, and the `/config` even without a step) and kept as
+    /// [`output::failed_path`] of the target (`run.failed.mcap`, replacing an earlier failed
+    /// one), so that a good earlier recording at the target is not replaced.
     pub fn finish_failed(self) -> Result<RecordSummary, RecordError> {
         let (mut out, inner) = self.close()?;
         if let Some((partial, target)) = inner {
-            if out.steps == 0 {
-                std::fs::remove_file(&partial).map_err(|e| RecordError::io(&partial, e))?;
-                out.path = None;
-            } else {
-                let failed = output::failed_path(&target);
-                std::fs::rename(&partial, &failed).map_err(|e| RecordError::io(&failed, e))?;
-                sync_dir(&failed);
-                out.path = Some(failed);
-            }
+            let failed = output::failed_path(&target);
+            std::fs::rename(&partial, &failed).map_err(|e| RecordError::io(&failed, e))?;
+            sync_dir(&failed);
+            out.path = Some(failed);
         }
         Ok(out)
     }

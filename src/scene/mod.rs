@@ -54,15 +54,16 @@ pub const MAX_N: usize = 10_000;
 /// vortex amplitude, …); the particle spacing is `Δx = 1/n` on the unit square.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FlowConfig {
-    /// Reynolds number `U L / ν`.
+    /// Reynolds number `U L / ν`, positive and finite.
     pub re: f64,
-    /// Fluid particles per side.
+    /// Fluid particles per side, from the scene's `MIN_N` to [`MAX_N`].
     pub n: usize,
-    /// End time (a scene may stop earlier, e.g. the cavity once steady).
+    /// End time (a scene may stop earlier, e.g. the cavity once steady), positive and finite;
+    /// a run must take at least one step.
     pub t_end: f64,
-    /// Influence radius over particle spacing, `h/Δx`.
+    /// Influence radius over particle spacing, `h/Δx` in (1, 8].
     pub h_over_dx: f64,
-    /// Neighbour skin over `h`.
+    /// Neighbour skin over `h`, in [0, 2].
     pub skin_over_h: f64,
     /// Reference weight.
     pub weight: Weight,
@@ -74,13 +75,14 @@ pub struct FlowConfig {
     pub motion: Motion,
     /// Integrator of the explicit terms.
     pub integrator: Integrator,
-    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
+    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
     pub viscous_theta: f64,
     /// Particle shifting (Lagrangian runs only).
     pub shifting: Option<Shifting>,
     /// Volumes.
     pub volumes: VolumeRule,
-    /// Time-step limits.
+    /// Time-step limits: `cfl`, `visc`, `force` in (0, 1], `u_ref` in [0, 10⁶], `dt_max` and
+    /// `dt_fixed` positive and finite when set (see [`FlowConfig::validate`]).
     pub limits: TimeStepLimits,
     /// Linear solver.
     pub solve: SolveParams,
