@@ -30,7 +30,8 @@ fn first_input(walls: bool) -> ProjectionInput {
         let r = sim.advance().unwrap();
         rec.write_step(&r, &sim).unwrap();
     } else {
-        let mut sim = taylor_green::build(&TaylorGreenConfig::default().with(|c| c.n = 10)).unwrap();
+        let mut sim =
+            taylor_green::build(&TaylorGreenConfig::default().with(|c| c.n = 10)).unwrap();
         sim.projection.capture = true;
         let r = sim.advance().unwrap();
         rec.write_step(&r, &sim).unwrap();
@@ -218,8 +219,14 @@ fn configuration_arrays_duplicates_and_ranges_are_named() {
     assert_eq!(config_key("[100, 32]"), "(top level)");
     assert_eq!(config_key(r#"{"limits": [0.2, 0.5, 0.25, 1]}"#), "limits");
     assert_eq!(config_key(r#"{"steady": [0.5, 1e-3, 2, true]}"#), "steady");
-    assert_eq!(config_key(r#"{"solve": {"rel_tol": [1e-8]}}"#), "solve.rel_tol");
-    assert_eq!(config_key(r#"{"shifting": [0.1, 0.2, true, false]}"#), "shifting");
+    assert_eq!(
+        config_key(r#"{"solve": {"rel_tol": [1e-8]}}"#),
+        "solve.rel_tol"
+    );
+    assert_eq!(
+        config_key(r#"{"shifting": [0.1, 0.2, true, false]}"#),
+        "shifting"
+    );
     // duplicate keys, at the top and nested, named by path
     assert_eq!(config_key(r#"{"n": 10, "n": 20}"#), "n");
     assert_eq!(
@@ -227,7 +234,10 @@ fn configuration_arrays_duplicates_and_ranges_are_named() {
         "limits.cfl"
     );
     let e = strict_json(r#"{"a": {"b": [{"c": 1, "c": 2}]}}"#).unwrap_err();
-    assert!(matches!(e, InputError::Config { ref key, .. } if key == "a.b[0].c"), "{e:?}");
+    assert!(
+        matches!(e, InputError::Config { ref key, .. } if key == "a.b[0].c"),
+        "{e:?}"
+    );
     // trailing data and syntax
     assert_eq!(config_key(r#"{"n": 10} {"n": 20}"#), "(top level)");
     assert_eq!(config_key(r#"{"n": 10"#), "(top level)");
@@ -236,15 +246,24 @@ fn configuration_arrays_duplicates_and_ranges_are_named() {
         r#"{"scene": "cavity", "config": {"n": 10, "n": 12}}"#,
     )
     .unwrap_err();
-    assert!(matches!(e, InputError::Config { ref key, .. } if key == "config.n"), "{e:?}");
+    assert!(
+        matches!(e, InputError::Config { ref key, .. } if key == "config.n"),
+        "{e:?}"
+    );
     let e = scene_config_from_json::<cavity::Cavity>(
         r#"{"scene": "cavity", "config": {"limits": [1, 2]}}"#,
     )
     .unwrap_err();
-    assert!(matches!(e, InputError::Config { ref key, .. } if key == "config.limits"), "{e:?}");
+    assert!(
+        matches!(e, InputError::Config { ref key, .. } if key == "config.limits"),
+        "{e:?}"
+    );
     let e = scene_config_from_json::<cavity::Cavity>(r#"{"scene": "taylor_green", "config": {}}"#)
         .unwrap_err();
-    assert!(matches!(e, InputError::Config { ref key, .. } if key == "scene"), "{e:?}");
+    assert!(
+        matches!(e, InputError::Config { ref key, .. } if key == "scene"),
+        "{e:?}"
+    );
     let ok = scene_config_from_json::<cavity::Cavity>(r#"{"scene": "cavity", "config": {"n": 9}}"#)
         .unwrap();
     assert_eq!(ok.n, 9);
@@ -272,7 +291,10 @@ fn memory_estimate_is_an_upper_bound_of_the_measured_peaks() {
         let cfg = CavityConfig::default().with(|c| c.n = n);
         let (particles, bytes) = cfg.memory_estimate::<2>();
         assert!(particles >= (n * n) as f64);
-        assert!(bytes > measured && bytes < 2.0 * measured, "n {n}: {bytes:e}");
+        assert!(
+            bytes > measured && bytes < 2.0 * measured,
+            "n {n}: {bytes:e}"
+        );
     }
 }
 
@@ -283,7 +305,9 @@ fn a_run_without_a_step_is_an_error_not_a_result() {
         c.t_end = 1e-13;
     });
     cfg.validate().unwrap();
-    let e = cavity::run(&cfg, |_, _| Ok(())).err().expect("no step: an error");
+    let e = cavity::run(&cfg, |_, _| Ok(()))
+        .err()
+        .expect("no step: an error");
     assert!(e.to_string().contains("t_end"), "{e}");
     assert!(e.to_string().contains("no step"), "{e}");
 }
@@ -300,7 +324,10 @@ fn an_output_directory_has_one_owner() {
         matches!(e, RecordError::Locked { holder: Some(p), .. } if p == std::process::id()),
         "{e:?}"
     );
-    assert!(e.to_string().contains(&std::process::id().to_string()), "{e}");
+    assert!(
+        e.to_string().contains(&std::process::id().to_string()),
+        "{e}"
+    );
     // a run into the locked directory fails before writing anything
     let cfg = CavityConfig::default().with(|c| {
         c.n = 8;
@@ -331,9 +358,14 @@ fn a_failed_run_never_replaces_a_good_recording() {
         c.t_end = 0.1;
     });
     let opts = RecorderOptions::new(RecordLevel::Diagnostics, 10);
-    let good = run_recorded(&cfg, &path, opts, &cfg.record_header(), |_| {}, |_, _| {
-        Ok(ControlFlow::Continue(()))
-    })
+    let good = run_recorded(
+        &cfg,
+        &path,
+        opts,
+        &cfg.record_header(),
+        |_| {},
+        |_, _| Ok(ControlFlow::Continue(())),
+    )
     .unwrap();
     assert!(good.run.is_ok());
     let s = good.record.unwrap();
@@ -341,26 +373,42 @@ fn a_failed_run_never_replaces_a_good_recording() {
     drop(good.lock);
     let before = std::fs::read(&path).unwrap();
     // a run that fails at its second step (the observer's error; the run has 2 steps)
-    let failed = run_recorded(&cfg, &path, opts, &cfg.record_header(), |_| {}, |rep, _| {
-        if rep.step == 2 {
-            Err(InputError::parameter("test", 2.0, "failing on purpose").into())
-        } else {
-            Ok(ControlFlow::Continue(()))
-        }
-    })
+    let failed = run_recorded(
+        &cfg,
+        &path,
+        opts,
+        &cfg.record_header(),
+        |_| {},
+        |rep, _| {
+            if rep.step == 2 {
+                Err(InputError::parameter("test", 2.0, "failing on purpose").into())
+            } else {
+                Ok(ControlFlow::Continue(()))
+            }
+        },
+    )
     .unwrap();
     assert!(failed.run.is_err());
     let s = failed.record.unwrap();
     assert_eq!(s.path.as_deref(), Some(failed_path(&path).as_path()));
-    assert_eq!(std::fs::read(&path).unwrap(), before, "the good recording is untouched");
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        before,
+        "the good recording is untouched"
+    );
     assert_eq!(Replay::open(&failed_path(&path)).unwrap().steps.len(), 2);
     assert!(!partial_path(&path).exists());
     drop(failed.lock);
     // a run that fails before its first step keeps its configuration aside too
     let bad = cfg.clone().with(|c| c.t_end = 1e-13);
-    let failed = run_recorded(&bad, &path, opts, &bad.record_header(), |_| {}, |_, _| {
-        Ok(ControlFlow::Continue(()))
-    })
+    let failed = run_recorded(
+        &bad,
+        &path,
+        opts,
+        &bad.record_header(),
+        |_| {},
+        |_, _| Ok(ControlFlow::Continue(())),
+    )
     .unwrap();
     assert!(failed.run.is_err());
     assert_eq!(failed.record.unwrap().path, Some(failed_path(&path)));
@@ -449,14 +497,21 @@ fn cli_refuses_fifos_and_writing_onto_its_input() {
     }
     let o = gpm(&["replay", f, "--vtk", f, "--quiet"]);
     assert_clean_failure(&o, &["input file"]);
-    assert_eq!(std::fs::read(&file).unwrap(), bytes, "the input is untouched");
+    assert_eq!(
+        std::fs::read(&file).unwrap(),
+        bytes,
+        "the input is untouched"
+    );
     // a directory and a FIFO as input are refused at once (not waited on)
     let o = gpm(&["replay", dir.path().to_str().unwrap(), "--quiet"]);
     assert_clean_failure(&o, &["directory"]);
     #[cfg(unix)]
     {
         let fifo = dir.path().join("fifo");
-        let ok = Command::new("mkfifo").arg(&fifo).status().is_ok_and(|s| s.success());
+        let ok = Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .is_ok_and(|s| s.success());
         if ok {
             let t0 = Instant::now();
             let o = gpm(&["replay", fifo.to_str().unwrap(), "--quiet"]);
@@ -485,8 +540,14 @@ fn cli_configuration_threads_and_estimates_are_checked() {
     for (text, words) in [
         (r#"{"n": 10, "n": 12}"#, &["'n'", "more than once"][..]),
         (r#"{"limits": [0.2, 0.5]}"#, &["'limits'", "array"][..]),
-        (r#"{"scene": "cavity", "config": {"solve": {"rel_tol": 1e-8, "rel_tol": 1e-9}}}"#, &["config.solve.rel_tol"][..]),
-        (r#"{"limits": {"cfl": 1e300}}"#, &["limits.cfl", "(0, 1]"][..]),
+        (
+            r#"{"scene": "cavity", "config": {"solve": {"rel_tol": 1e-8, "rel_tol": 1e-9}}}"#,
+            &["config.solve.rel_tol"][..],
+        ),
+        (
+            r#"{"limits": {"cfl": 1e300}}"#,
+            &["limits.cfl", "(0, 1]"][..],
+        ),
     ] {
         std::fs::write(&cfg, text).unwrap();
         let r = gpm(&["run", "cavity", "--config", c, "--out", o, "--quiet"]);
@@ -499,7 +560,11 @@ fn cli_configuration_threads_and_estimates_are_checked() {
     let r = gpm(&["--threads", "0", "run", "cavity", "--out", o]);
     assert_clean_failure(&r, &["--threads 0"]);
     // a tiny fixed time step: refused with the estimate, before anything is written
-    std::fs::write(&cfg, r#"{"n": 8, "t_end": 10, "limits": {"dt_fixed": 1e-7}}"#).unwrap();
+    std::fs::write(
+        &cfg,
+        r#"{"n": 8, "t_end": 10, "limits": {"dt_fixed": 1e-7}}"#,
+    )
+    .unwrap();
     let r = gpm(&["run", "cavity", "--config", c, "--out", o, "--quiet"]);
     assert_clean_failure(&r, &["steps", "--force"]);
     assert!(!out.join("run.mcap").exists());
@@ -514,7 +579,9 @@ fn cli_second_run_into_one_directory_fails_at_once_naming_the_holder() {
     let out = dir.path().to_str().unwrap();
     // the first run takes a few seconds
     let mut first = Command::new(gpm_bin())
-        .args(["run", "cavity", "--n", "24", "--t-end", "3", "--quiet", "--out", out])
+        .args([
+            "run", "cavity", "--n", "24", "--t-end", "3", "--quiet", "--out", out,
+        ])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -527,11 +594,20 @@ fn cli_second_run_into_one_directory_fails_at_once_naming_the_holder() {
     }
     let t1 = Instant::now();
     let second = record_cli(dir.path(), &[]);
-    assert!(t1.elapsed() < Duration::from_secs(20), "the second run waited");
+    assert!(
+        t1.elapsed() < Duration::from_secs(20),
+        "the second run waited"
+    );
     assert_clean_failure(&second, &["in use", &format!("process {}", first.id())]);
     let status = first.wait().unwrap();
     assert!(status.success());
-    assert!(Replay::open(&dir.path().join("run.mcap")).unwrap().steps.len() > 10);
+    assert!(
+        Replay::open(&dir.path().join("run.mcap"))
+            .unwrap()
+            .steps
+            .len()
+            > 10
+    );
 }
 
 #[test]
@@ -560,7 +636,10 @@ fn cli_closed_and_full_stdout() {
                 vec!["replay", f.to_str().unwrap(), "--quiet"],
                 vec!["replay", f.to_str().unwrap(), "--quiet", "--json"],
             ] {
-                let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+                let full = std::fs::OpenOptions::new()
+                    .write(true)
+                    .open("/dev/full")
+                    .unwrap();
                 let out = Command::new(gpm_bin())
                     .args(&args)
                     .stdout(full)
@@ -569,10 +648,15 @@ fn cli_closed_and_full_stdout() {
                     .unwrap();
                 assert_clean_failure(&out, &["standard output", "space"]);
             }
-            let full = std::fs::OpenOptions::new().write(true).open("/dev/full").unwrap();
+            let full = std::fs::OpenOptions::new()
+                .write(true)
+                .open("/dev/full")
+                .unwrap();
             let d2 = dir.path().join("full");
             let out = Command::new(gpm_bin())
-                .args(["run", "cavity", "--n", "8", "--t-end", "0.1", "--quiet", "--out"])
+                .args([
+                    "run", "cavity", "--n", "8", "--t-end", "0.1", "--quiet", "--out",
+                ])
                 .arg(&d2)
                 .stdout(full)
                 .stderr(Stdio::piped())
@@ -595,7 +679,9 @@ fn cli_signals_finish_the_recording() {
     for (sig, name) in [(2, "INT"), (15, "TERM"), (1, "HUP"), (9, "KILL")] {
         let dir = tempfile::tempdir().unwrap();
         let child = Command::new(gpm_bin())
-            .args(["run", "cavity", "--n", "30", "--t-end", "20", "--quiet", "--out"])
+            .args([
+                "run", "cavity", "--n", "30", "--t-end", "20", "--quiet", "--out",
+            ])
             .arg(dir.path())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -609,7 +695,10 @@ fn cli_signals_finish_the_recording() {
             if steps >= 5 {
                 break;
             }
-            assert!(t0.elapsed() < Duration::from_secs(120), "SIG{name}: no steps");
+            assert!(
+                t0.elapsed() < Duration::from_secs(120),
+                "SIG{name}: no steps"
+            );
             std::thread::sleep(Duration::from_millis(50));
         }
         let ok = Command::new("kill")
@@ -627,7 +716,12 @@ fn cli_signals_finish_the_recording() {
             continue;
         }
         use std::os::unix::process::ExitStatusExt;
-        assert_eq!(out.status.code(), Some(128 + sig), "SIG{name}: {e} {:?}", out.status.signal());
+        assert_eq!(
+            out.status.code(),
+            Some(128 + sig),
+            "SIG{name}: {e} {:?}",
+            out.status.signal()
+        );
         let printed: usize = e
             .split("after step ")
             .nth(1)
@@ -640,7 +734,12 @@ fn cli_signals_finish_the_recording() {
         assert_eq!(r.steps.len(), printed, "SIG{name}: {e}");
         assert!(!partial.exists());
         // `gpm replay` reads it back
-        let o = gpm(&["replay", dir.path().join("run.mcap").to_str().unwrap(), "--quiet", "--strict"]);
+        let o = gpm(&[
+            "replay",
+            dir.path().join("run.mcap").to_str().unwrap(),
+            "--quiet",
+            "--strict",
+        ]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
 }

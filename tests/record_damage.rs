@@ -252,7 +252,10 @@ fn ctrl_c_finishes_the_file() {
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{stderr}");
-    assert!(stderr.contains("interrupted by SIGINT after step"), "{stderr}");
+    assert!(
+        stderr.contains("interrupted by SIGINT after step"),
+        "{stderr}"
+    );
     assert!(!path.exists(), "the partial file is renamed");
     let r = Replay::open(&dir.path().join("run.mcap")).unwrap();
     assert!(r.scan.complete, "{:?}", r.damage());

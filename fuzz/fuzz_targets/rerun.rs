@@ -21,7 +21,10 @@ fn bases() -> &'static [ProjectionInput; 2] {
     BASES.get_or_init(|| {
         let dir = std::env::temp_dir();
         let record = |walls: bool| {
-            let path = dir.join(format!("gpm-fuzz-rerun-{}-{walls}.mcap", std::process::id()));
+            let path = dir.join(format!(
+                "gpm-fuzz-rerun-{}-{walls}.mcap",
+                std::process::id()
+            ));
             let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &()).expect("recorder");
             if walls {
                 let cfg = cavity::CavityConfig::default().with(|c| c.n = 6);
@@ -76,28 +79,38 @@ fn corrupt(m: &mut ProjectionInput, ops: &[u8]) {
         let w = u32::from_le_bytes([val[0], val[1], val[2], val[3]]);
         match field % 12 {
             0 => {
-                let Ok(mut k) = m.role_kind.to_u8("k") else { return };
+                let Ok(mut k) = m.role_kind.to_u8("k") else {
+                    return;
+                };
                 if let Some(x) = k.get_mut(i) {
                     *x = val[0] % 4;
                 }
                 m.role_kind = Array::from_u8(&k);
             }
             1 => {
-                let Ok(mut s) = m.ghost_source.to_u32("s") else { return };
+                let Ok(mut s) = m.ghost_source.to_u32("s") else {
+                    return;
+                };
                 if let Some(x) = s.get_mut(i) {
                     *x = w;
                 }
                 m.ghost_source = Array::from_u32(&s);
             }
             2 => {
-                let Ok(mut s) = m.ghost_walls.to_u8("w") else { return };
+                let Ok(mut s) = m.ghost_walls.to_u8("w") else {
+                    return;
+                };
                 if let Some(x) = s.get_mut(i) {
                     *x = val[0];
                 }
                 m.ghost_walls = Array::from_u8(&s);
             }
             3 | 4 => {
-                let arr = if field % 12 == 3 { &mut m.x } else { &mut m.u_star };
+                let arr = if field % 12 == 3 {
+                    &mut m.x
+                } else {
+                    &mut m.u_star
+                };
                 let Ok(mut x) = arr.to_f64("x") else { return };
                 let len = x.len().max(1);
                 if let Some(c) = x.get_mut(idx % len) {
@@ -109,7 +122,9 @@ fn corrupt(m: &mut ProjectionInput, ops: &[u8]) {
                 };
             }
             5 => {
-                let Ok(mut x) = m.vol.to_f64("vol") else { return };
+                let Ok(mut x) = m.vol.to_f64("vol") else {
+                    return;
+                };
                 if let Some(c) = x.get_mut(i) {
                     *c = v;
                 }
@@ -135,7 +150,9 @@ fn corrupt(m: &mut ProjectionInput, ops: &[u8]) {
             }
             _ => {
                 // drop or duplicate the last particle's entries in one array
-                let Ok(mut p) = m.p_in.to_f64("p") else { return };
+                let Ok(mut p) = m.p_in.to_f64("p") else {
+                    return;
+                };
                 if val[0] % 2 == 0 {
                     p.pop();
                 } else if let Some(&l) = p.last() {

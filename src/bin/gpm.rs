@@ -22,11 +22,11 @@
 //! is an error.
 
 use anyhow::{bail, Context, Result};
-use gpm::record::output::{check_input_file, check_output_file};
 use clap::{Args, Parser, Subcommand};
 use gpm::flow::Motion;
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
+use gpm::record::output::{check_input_file, check_output_file};
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
 use gpm::record::{ChunkCompression, RecordLevel, RecorderOptions};
