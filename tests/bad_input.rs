@@ -848,8 +848,9 @@ fn unreadable_foreign_and_truncated_mcap_files_are_named() {
     let e = Replay::open(&missing).unwrap_err();
     assert!(matches!(e, RecordError::Io { ref path, .. } if path == &missing));
     assert_names(&e.to_string(), &["missing.mcap"]);
+    // a directory is refused before it is opened (issue 16: FIFOs and devices alike)
     let e = Replay::open(dir.path()).unwrap_err();
-    assert!(matches!(e, RecordError::Io { .. }), "{e:?}");
+    assert!(matches!(e, RecordError::NotAFile { .. }), "{e:?}");
     assert_names(&e.to_string(), &[&dir.path().display().to_string()]);
     // not MCAP at all
     let garbage = dir.path().join("garbage.mcap");

@@ -588,7 +588,7 @@ fn cli_second_run_into_one_directory_fails_at_once_naming_the_holder() {
         .unwrap();
     let lock = dir.path().join(".gpm.lock");
     let t0 = Instant::now();
-    while std::fs::read_to_string(&lock).map_or(true, |s| s.trim().is_empty()) {
+    while !std::fs::read_to_string(&lock).is_ok_and(|s| !s.trim().is_empty()) {
         assert!(t0.elapsed() < Duration::from_secs(60), "no lock taken");
         std::thread::sleep(Duration::from_millis(20));
     }

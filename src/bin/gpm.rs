@@ -362,7 +362,7 @@ fn check_estimates<const D: usize, S: Scene<D>>(cfg: &SceneConfig<S>, force: boo
     let sim = S::build(cfg).context("setting up the run")?;
     let (dt, limit) = sim.time_step();
     let steps = (cfg.t_end - sim.time) / dt;
-    if !(steps <= MAX_STEPS) && !force {
+    if (steps.is_nan() || steps > MAX_STEPS) && !force {
         bail!(
             "the run would take about {steps:.2e} steps (t_end = {} with a first time step of \
              {dt:.3e}, set by {limit:?}), more than {MAX_STEPS:.0e}: shorten t_end, enlarge the \

@@ -504,11 +504,15 @@ pub fn scene_config_from_json<S: SceneParams>(text: &str) -> Result<SceneConfig<
         if let Some(scene) = m.remove("scene") {
             match scene.as_str() {
                 Some(s) if s.trim().to_ascii_lowercase().replace('-', "_") == S::NAME => {}
-                _ => {
+                other => {
+                    let named = other.map_or_else(|| scene.to_string(), |s| s.to_string());
                     return Err(InputError::Config {
                         key: "scene".into(),
-                        reason: format!("the file configures the scene {scene}, not '{}'", S::NAME),
-                    })
+                        reason: format!(
+                            "the file configures the scene '{named}', not '{}'",
+                            S::NAME
+                        ),
+                    });
                 }
             }
         }
@@ -531,31 +535,24 @@ pub fn scene_config_from_json<S: SceneParams>(text: &str) -> Result<SceneConfig<
 /// `(top level)` with serde's line and column. Nesting is limited by serde_json (128 levels).
 pub fn strict_json(text: &str) -> Result<serde_json::Value, InputError> {
     let mut de = serde_json::Deserializer::from_str(text);
-    let dup = std::cell::RefCell::new(None);
+    let at = std::cell::RefCell::new(None);
     let v = StrictValue {
         path: String::new(),
-        dup: &dup,
+        at: &at,
     }
     .deserialize(&mut de)
     .and_then(|v| de.end().map(|_| v));
-    match (v, dup.into_inner()) {
-        (_, Some(key)) => Err(InputError::Config {
-            key,
-            reason: "the key is given more than once".into(),
-        }),
-        (Ok(v), None) => Ok(v),
-        (Err(e), None) => Err(InputError::Config {
-            key: "(top level)".into(),
-            reason: e.to_string(),
-        }),
-    }
+    v.map_err(|e| InputError::Config {
+        key: at.into_inner().unwrap_or_else(|| "(top level)".into()),
+        reason: e.to_string(),
+    })
 }
 
-/// A [`serde_json::Value`] built key by key with the path of each, so that a duplicate key is
-/// named (`dup` receives its path).
+/// A [`serde_json::Value`] built key by key with the path of each, so that an error names the
+/// innermost key it happened under (`at` receives its path: a duplicate key, a bad value).
 struct StrictValue<'a> {
     path: String,
-    dup: &'a std::cell::RefCell<Option<String>>,
+    at: &'a std::cell::RefCell<Option<String>>,
 }
 
 impl StrictValue<'_> {
@@ -612,29 +609,44 @@ impl<'de> Visitor<'de> for StrictValue<'_> {
         mut seq: A,
     ) -> Result<serde_json::Value, A::Error> {
         let mut out = Vec::new();
-        while let Some(v) = seq.next_element_seed(StrictValue {
-            path: format!("{}[{}]", self.path, out.len()),
-            dup: self.dup,
-        })? {
-            out.push(v);
+        loop {
+            let path = format!("{}[{}]", self.path, out.len());
+            let next = seq.next_element_seed(StrictValue {
+                path: path.clone(),
+                at: self.at,
+            });
+            match next {
+                Ok(Some(v)) => out.push(v),
+                Ok(None) => return Ok(serde_json::Value::Array(out)),
+                Err(e) => {
+                    self.at.borrow_mut().get_or_insert(path);
+                    return Err(e);
+                }
+            }
         }
-        Ok(serde_json::Value::Array(out))
     }
     fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<serde_json::Value, A::Error> {
         let mut out = serde_json::Map::new();
         while let Some(key) = map.next_key::<String>()? {
             let path = self.child(&key);
             if out.contains_key(&key) {
-                *self.dup.borrow_mut() = Some(path.clone());
-                return Err(serde::de::Error::custom(format_args!(
-                    "duplicate key `{path}`"
-                )));
+                let e = serde::de::Error::custom(format_args!(
+                    "the key `{path}` is given more than once"
+                ));
+                *self.at.borrow_mut() = Some(path);
+                return Err(e);
             }
             let v = map.next_value_seed(StrictValue {
-                path,
-                dup: self.dup,
-            })?;
-            out.insert(key, v);
+                path: path.clone(),
+                at: self.at,
+            });
+            match v {
+                Ok(v) => out.insert(key, v),
+                Err(e) => {
+                    self.at.borrow_mut().get_or_insert(path);
+                    return Err(e);
+                }
+            };
         }
         Ok(serde_json::Value::Object(out))
     }
