@@ -177,7 +177,8 @@ fn start_long_run(dir: &Path, min_steps: usize) -> (std::process::Child, PathBuf
     )
     .unwrap();
     let child = Command::new(gpm())
-        .args(["run", "cavity", "--quiet", "--config"])
+        // --force: the step estimate of this deliberately endless run exceeds 10⁶
+        .args(["run", "cavity", "--quiet", "--force", "--config"])
         .arg(&cfg)
         .arg("--out")
         .arg(dir)

@@ -544,7 +544,11 @@ pub fn strict_json(text: &str) -> Result<serde_json::Value, InputError> {
     .and_then(|v| de.end().map(|_| v));
     v.map_err(|e| InputError::Config {
         key: at.into_inner().unwrap_or_else(|| "(top level)".into()),
-        reason: e.to_string(),
+        reason: if e.is_syntax() || e.is_eof() {
+            format!("the text is not JSON: {e}")
+        } else {
+            e.to_string()
+        },
     })
 }
 
@@ -631,7 +635,7 @@ impl<'de> Visitor<'de> for StrictValue<'_> {
             let path = self.child(&key);
             if out.contains_key(&key) {
                 let e = serde::de::Error::custom(format_args!(
-                    "the key `{path}` is given more than once"
+                    "duplicate field `{path}`: the key is given more than once"
                 ));
                 *self.at.borrow_mut() = Some(path);
                 return Err(e);
