@@ -584,7 +584,7 @@ impl Recorder {
     pub fn wants_snapshot(&self, step: u64) -> bool {
         self.inner.is_some()
             && self.options.level == RecordLevel::Full
-            && (step.max(1) - 1) % self.options.particles_every == 0
+            && (step.max(1) - 1).is_multiple_of(self.options.particles_every)
     }
 
     /// Records one step of a [`Simulation`]: [`record`](Self::record) with the flow report's
