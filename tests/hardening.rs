@@ -305,9 +305,9 @@ fn a_run_without_a_step_is_an_error_not_a_result() {
         c.t_end = 1e-13;
     });
     cfg.validate().unwrap();
-    let e = cavity::run(&cfg, |_, _| Ok(()))
-        .err()
-        .expect("no step: an error");
+    let Err(e) = cavity::run(&cfg, |_, _| Ok(())) else {
+        panic!("no step: an error expected");
+    };
     assert!(e.to_string().contains("t_end"), "{e}");
     assert!(e.to_string().contains("no step"), "{e}");
 }
@@ -396,7 +396,7 @@ fn a_failed_run_never_replaces_a_good_recording() {
         before,
         "the good recording is untouched"
     );
-    assert_eq!(Replay::open(&failed_path(&path)).unwrap().steps.len(), 2);
+    assert_eq!(Replay::open(failed_path(&path)).unwrap().steps.len(), 2);
     assert!(!partial_path(&path).exists());
     drop(failed.lock);
     // a run that fails before its first step keeps its configuration aside too
@@ -412,7 +412,7 @@ fn a_failed_run_never_replaces_a_good_recording() {
     .unwrap();
     assert!(failed.run.is_err());
     assert_eq!(failed.record.unwrap().path, Some(failed_path(&path)));
-    let r = Replay::open(&failed_path(&path)).unwrap();
+    let r = Replay::open(failed_path(&path)).unwrap();
     assert!(r.steps.is_empty() && r.config.is_some() && r.scan.complete);
     assert!(!partial_path(&path).exists());
     assert_eq!(std::fs::read(&path).unwrap(), before);
@@ -430,7 +430,7 @@ fn a_recording_is_written_under_its_partial_name_until_finished() {
     rec.write_step(&r, &sim).unwrap();
     assert!(!path.exists());
     // the partial file reads back while the run goes on (a killed run leaves it)
-    assert_eq!(Replay::open(&partial_path(&path)).unwrap().steps.len(), 1);
+    assert_eq!(Replay::open(partial_path(&path)).unwrap().steps.len(), 1);
     let s = rec.finish().unwrap();
     assert_eq!(s.path.as_deref(), Some(path.as_path()));
     assert!(path.exists() && !partial_path(&path).exists());
@@ -602,7 +602,7 @@ fn cli_second_run_into_one_directory_fails_at_once_naming_the_holder() {
     let status = first.wait().unwrap();
     assert!(status.success());
     assert!(
-        Replay::open(&dir.path().join("run.mcap"))
+        Replay::open(dir.path().join("run.mcap"))
             .unwrap()
             .steps
             .len()
@@ -664,7 +664,7 @@ fn cli_closed_and_full_stdout() {
                 .unwrap();
             assert_clean_failure(&out, &["standard output"]);
             // the recording itself is complete
-            assert!(Replay::open(&d2.join("run.mcap")).unwrap().scan.complete);
+            assert!(Replay::open(d2.join("run.mcap")).unwrap().scan.complete);
         }
     }
 }
@@ -729,7 +729,7 @@ fn cli_signals_finish_the_recording() {
             .and_then(|s| s.parse().ok())
             .unwrap_or_else(|| panic!("SIG{name}: no step printed: {e}"));
         assert!(e.contains(&format!("SIG{name}")), "{e}");
-        let r = Replay::open(&dir.path().join("run.mcap")).unwrap();
+        let r = Replay::open(dir.path().join("run.mcap")).unwrap();
         assert!(r.scan.complete && r.damage().is_none(), "SIG{name}");
         assert_eq!(r.steps.len(), printed, "SIG{name}: {e}");
         assert!(!partial.exists());

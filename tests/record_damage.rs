@@ -258,7 +258,7 @@ fn ctrl_c_finishes_the_file() {
         "{stderr}"
     );
     assert!(!path.exists(), "the partial file is renamed");
-    let r = Replay::open(&dir.path().join("run.mcap")).unwrap();
+    let r = Replay::open(dir.path().join("run.mcap")).unwrap();
     assert!(r.scan.complete, "{:?}", r.damage());
     assert!(r.steps.len() >= 10);
     assert_eq!(
