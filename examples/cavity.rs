@@ -184,8 +184,8 @@ fn run(a: Args) -> Result<ExitCode> {
         Err(e) => {
             if let Err(fe) = &done.record {
                 eprintln!("error: finishing {} failed: {fe}", mcap.display());
-            } else if a.record != RecordLevel::None {
-                eprintln!("the recording up to the failure is in {}", mcap.display());
+            } else if let Some(p) = done.record.as_ref().ok().and_then(|s| s.path.as_ref()) {
+                eprintln!("the recording up to the failure is in {}", p.display());
             }
             return Err(e).context("cavity run failed");
         }

@@ -21,7 +21,7 @@
 //!   (`dt_over_limit = 1`), so a too-large `Δt` is named before anything happens;
 //! * `none`: only the library's own errors.
 //!
-//! Each run writes `OUT/<case>/run.mcap` (diagnostics every step: energy, Theorem 4.5 ratio,
+//! Each run writes `OUT/<case>/run.mcap` (`run.failed.mcap` when it failed; diagnostics every step: energy, Theorem 4.5 ratio,
 //! connectivity, divergence); the recorder is finished whatever the outcome and read back, and
 //! the summary says how many steps it holds. `OUT/summary.json` (also printed on stdout) has one
 //! entry per run: how long it held, what ended it, and the extremes of the monitored quantities.
@@ -355,6 +355,8 @@ fn run_case(c: &Case, a: &Args, dir: &Path) -> Result<Outcome> {
         Ok(_) => o.kind = "completed".into(),
         Err(e) => classify(&e, &mut o),
     }
+    // a failed run's recording is kept as run.failed.mcap (the summary names it)
+    let mcap = summary.path.clone().unwrap_or(mcap);
     let back = Replay::open(&mcap).with_context(|| format!("reading {}", mcap.display()))?;
     o.recorded_steps = back.steps.len() as u64;
     o.mcap_complete = back.scan.complete;

@@ -379,6 +379,29 @@ pub enum RecordError {
         /// What is wrong.
         reason: String,
     },
+    /// Another process holds the output directory's lock ([`crate::record::OutputLock`]): two
+    /// runs into one directory would overwrite each other's files.
+    #[error(
+        "{}: the output directory is in use by another gpm run{}; choose another --out or wait \
+         for it to finish",
+        path.display(),
+        holder.map(|p| format!(" (process {p})")).unwrap_or_default()
+    )]
+    Locked {
+        /// The lock file.
+        path: PathBuf,
+        /// The holder's process id, when it could be read from the lock file.
+        holder: Option<u32>,
+    },
+    /// A path that is not a regular file where one is read or written (a FIFO, a device, a
+    /// directory), or an output that would overwrite an input.
+    #[error("{}: {reason}", path.display())]
+    NotAFile {
+        /// The path.
+        path: PathBuf,
+        /// What it is, and why it is refused.
+        reason: String,
+    },
     /// Re-running a recorded projection failed.
     #[error("{}: re-running the projection of step {step} failed: {source}", path.display())]
     Rerun {

@@ -49,7 +49,7 @@ impl Default for TimeStepLimits {
             u_ref: 1.0,
             dt_max: None,
             dt_fixed: None,
-            guard: StabilityGuard::default(),
+            guard: StabilityGuard::blow_up(),
         }
     }
 }
@@ -124,11 +124,12 @@ pub struct StabilityGuard {
 }
 
 impl StabilityGuard {
-    /// The guard the scenes run with by default: fail when the largest speed exceeds 3 `u_ref`
+    /// The guard of [`TimeStepLimits::default`] (so every scene and flow runs with it unless
+    /// told otherwise): fail when the largest speed exceeds 3 `u_ref`
     /// or the kinetic energy grows tenfold in one step (neither happens in a healthy run of
     /// any scene: the lid, the body force and the initial vortex set the speed scale), so that
     /// a blow-up is named within a few steps of its onset instead of running on to overflow.
-    /// [`StabilityGuard::default`] has every check off (a caller's own loop decides).
+    /// [`StabilityGuard::default`] has every check off.
     pub fn blow_up() -> Self {
         StabilityGuard {
             speed_over_ref: Some(3.0),

@@ -541,7 +541,9 @@ fn solver_non_convergence_carries_its_iterations_and_residual() {
 // ---------------------------------------------------------------------------------------------
 // invalid configuration
 
-fn config_key<T: serde::de::DeserializeOwned + std::fmt::Debug>(json: &str) -> (String, String) {
+fn config_key<T: serde::de::DeserializeOwned + serde::Serialize + Default + std::fmt::Debug>(
+    json: &str,
+) -> (String, String) {
     match config_from_json::<T>(json) {
         Err(InputError::Config { key, reason }) => (key, reason),
         other => panic!("{json}: expected a configuration error, got {other:?}"),
@@ -779,8 +781,8 @@ fn a_blow_up_is_named_by_the_guard_with_step_quantity_and_particle() {
         }
         other => panic!("{other:?}"),
     }
-    // the scenes' default guard (speed ≤ 3 u_ref, energy growth ≤ 10 per step) lets a healthy
-    // run go on, the library's default guard has every check off
+    // the default limits' guard (speed ≤ 3 u_ref, energy growth ≤ 10 per step) lets a healthy
+    // run go on; StabilityGuard::default() has every check off
     assert_eq!(
         CavityConfig::default().limits.guard,
         StabilityGuard::blow_up()
@@ -902,8 +904,9 @@ fn unreadable_foreign_and_truncated_mcap_files_are_named() {
     let e = Replay::open(&missing).unwrap_err();
     assert!(matches!(e, RecordError::Io { ref path, .. } if path == &missing));
     assert_names(&e.to_string(), &["missing.mcap"]);
+    // a directory is refused before it is opened (issue 16: FIFOs and devices alike)
     let e = Replay::open(dir.path()).unwrap_err();
-    assert!(matches!(e, RecordError::Io { .. }), "{e:?}");
+    assert!(matches!(e, RecordError::NotAFile { .. }), "{e:?}");
     assert_names(&e.to_string(), &[&dir.path().display().to_string()]);
     // not MCAP at all
     let garbage = dir.path().join("garbage.mcap");
@@ -1109,7 +1112,9 @@ fn cli_run_failing(config: serde_json::Value, needles: &[&str]) -> (String, Repl
         ],
     );
     let stderr = assert_clean_failure(&o, needles);
-    let path = out.join("run.mcap");
+    // a failed run keeps its recording aside (run.mcap is only ever a finished run's)
+    let path = out.join("run.failed.mcap");
+    assert!(!out.join("run.mcap").exists());
     assert!(stderr.contains(&path.display().to_string()), "{stderr}");
     let replay = Replay::open(&path).unwrap();
     assert!(replay.scan.complete, "the recording was not finished");
@@ -1224,7 +1229,7 @@ fn examples_report_bad_input_cleanly() {
         a.extend(args.iter().copied());
         assert_clean_failure(&run(&tg, &a), &needles);
     }
-    // a Lagrangian cavity with a CFL number far too large: particles escape in the first
+    // a Lagrangian cavity at the largest CFL number (1): particles escape in the first
     // steps; the example names the particle and finishes its recording, which reads back
     let o = run(
         &cav,
@@ -1237,13 +1242,13 @@ fn examples_report_bad_input_cleanly() {
             "--motion",
             "lagrangian",
             "--cfl",
-            "40",
+            "1",
             "--t-end",
             "5",
         ],
     );
     assert_clean_failure(&o, &["cavity run failed", "particle", "outside the domain"]);
-    let r = Replay::open(Path::new(out).join("run.mcap")).unwrap();
+    let r = Replay::open(Path::new(out).join("run.failed.mcap")).unwrap();
     assert!(r.scan.complete);
     assert!(r.steps.len() <= 3);
 }

@@ -452,7 +452,7 @@ fn scene_configuration_keys_are_the_serialised_keys() {
     }
     check::<cavity::Cavity>();
     check::<taylor_green::TaylorGreen>();
-    assert_eq!(gpm::scene::SCENES, ["cavity", "taylor_green"]);
+    assert_eq!(gpm::scene::SCENES, ["cavity", "taylor_green", "channel"]);
 }
 
 #[test]

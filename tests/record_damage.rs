@@ -19,7 +19,9 @@ fn record(path: &Path, steps: usize) -> (Vec<u64>, Vec<StepDiagnostics>) {
     let mut sim = cavity::build(&cfg).unwrap();
     let mut rec =
         Recorder::create(path, RecordLevel::Diagnostics, 10, &serde_json::json!({})).unwrap();
-    let size = || std::fs::metadata(path).unwrap().len();
+    // written as `path.partial` until `finish` renames it
+    let partial = gpm::record::output::partial_path(path);
+    let size = || std::fs::metadata(&partial).unwrap().len();
     let mut ends = vec![size()];
     for _ in 0..steps {
         let r = sim.advance().unwrap();
@@ -175,7 +177,8 @@ fn start_long_run(dir: &Path, min_steps: usize) -> (std::process::Child, PathBuf
     )
     .unwrap();
     let child = Command::new(gpm())
-        .args(["run", "cavity", "--quiet", "--config"])
+        // --force: the step estimate of this deliberately endless run exceeds 10⁶
+        .args(["run", "cavity", "--quiet", "--force", "--config"])
         .arg(&cfg)
         .arg("--out")
         .arg(dir)
@@ -183,7 +186,8 @@ fn start_long_run(dir: &Path, min_steps: usize) -> (std::process::Child, PathBuf
         .stderr(Stdio::piped())
         .spawn()
         .expect("spawn gpm");
-    let path = dir.join("run.mcap");
+    // the run writes run.mcap.partial and renames it to run.mcap when it ends
+    let path = dir.join("run.mcap.partial");
     let start = Instant::now();
     loop {
         if let Ok(r) = Replay::open(&path) {
@@ -207,6 +211,7 @@ fn killed_run_replays_up_to_the_cut() {
     child.kill().unwrap(); // SIGKILL: no chance to finish the file
     child.wait().unwrap();
     let r = Replay::open(&path).unwrap();
+    assert!(!dir.path().join("run.mcap").exists(), "never renamed");
     let d = r.damage().expect("a killed run leaves no footer");
     assert!(!d.data_complete);
     let n = r.steps.len();
@@ -248,8 +253,12 @@ fn ctrl_c_finishes_the_file() {
     let out = child.wait_with_output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{stderr}");
-    assert!(stderr.contains("interrupted after step"), "{stderr}");
-    let r = Replay::open(&path).unwrap();
+    assert!(
+        stderr.contains("interrupted by SIGINT after step"),
+        "{stderr}"
+    );
+    assert!(!path.exists(), "the partial file is renamed");
+    let r = Replay::open(dir.path().join("run.mcap")).unwrap();
     assert!(r.scan.complete, "{:?}", r.damage());
     assert!(r.steps.len() >= 10);
     assert_eq!(

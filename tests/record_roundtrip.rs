@@ -57,7 +57,7 @@ fn record_cavity(
     for _ in 0..steps {
         let r = sim.advance().unwrap();
         rec.write_step(&r, &sim).unwrap();
-        if (r.step - 1) % k == 0 {
+        if (r.step - 1).is_multiple_of(k) {
             let p = &sim.particles;
             out.snapshots
                 .push((r.step, p.x.clone(), p.u.clone(), p.p.clone()));

@@ -232,7 +232,7 @@ fn every_variant_validates_and_round_trips() {
             m.neighbors.weight = *w;
             m.params.scheme = schemes[(k + l) % 3];
             m.params.solve.solver = solvers[l % 3];
-            m.params.source_ghosts = if (k + l) % 2 == 0 {
+            m.params.source_ghosts = if (k + l).is_multiple_of(2) {
                 gpm::record::schema::GhostContinuation::Mirror
             } else {
                 gpm::record::schema::GhostContinuation::Velocity

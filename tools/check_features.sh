@@ -4,7 +4,7 @@
 # library must build that way. Run by .ci/run; see README "Using gpm as a library".
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cli_crates=(clap indicatif plotters anyhow ctrlc)
+cli_crates=(clap indicatif plotters anyhow ctrlc nix)
 tree="$(cargo tree -e normal --no-default-features --prefix none --format '{p}')"
 bad=0
 for c in "${cli_crates[@]}"; do

@@ -7,27 +7,121 @@
 //! gpm replay results/tg/run.mcap --vtk results/tg/vtk --rerun
 //! ```
 //!
-//! Errors are printed as one line (with their causes) and the exit status is non-zero; Ctrl-C
-//! stops a run after the current step and finishes the MCAP file (exit status 130). A run that
-//! fails finishes its MCAP file too, so every step before the failure reads back. `replay` reads
-//! cut or damaged files with a warning naming the byte offset; `--strict` makes that an error
-//! (exit status 2).
+//! Errors are printed as one line (with their causes) and the exit status is non-zero. SIGINT
+//! (Ctrl-C), SIGTERM and SIGHUP stop a run after the current step and finish the MCAP file (exit
+//! status 128 + the signal: 130, 143, 129); a second signal exits at once, keeping every flushed
+//! step in `run.mcap.partial`. A run owns its output directory (`DIR/.gpm.lock`; a second run
+//! into it fails at once, naming the holder's process id) and writes `run.mcap.partial`, renamed
+//! to `run.mcap` when it ends; a run that fails keeps its steps in `run.failed.mcap`, so an
+//! earlier good `run.mcap` is never replaced by a failed one. Before a run starts, its memory and
+//! step count are estimated and a run that would not fit (or take more than 10⁶ steps) is
+//! refused with the estimate unless `--force`. `replay` reads cut or damaged files with a warning
+//! naming the byte offset; `--strict` makes that an error (exit status 2); it never writes onto
+//! its input, and inputs must be regular files (a FIFO is refused, not waited on). A closed
+//! standard output (`gpm replay f | head -1`) ends the program quietly with status 0; a full one
+//! is an error.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
 use gpm::flow::Motion;
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
+use gpm::record::output::{check_input_file, check_output_file};
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
 use gpm::record::{ChunkCompression, RecordLevel, RecorderOptions};
 use gpm::scene::{run_recorded, Scene, SceneConfig, SceneVisitor};
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::Write;
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::Arc;
+
+/// Prints to standard output; an error (closed pipe, full disk) is returned, not a panic.
+macro_rules! outln {
+    ($($arg:tt)*) => {
+        writeln!(std::io::stdout().lock(), $($arg)*).context("writing to standard output")
+    };
+}
+
+/// Prints a line to standard error, ignoring a failure (there is nowhere left to report it).
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        let _ = writeln!(std::io::stderr().lock(), $($arg)*);
+    }};
+}
+
+/// Largest estimated step count a run may have without `--force`.
+const MAX_STEPS: f64 = 1e6;
+/// Largest configuration file read (bytes).
+const MAX_CONFIG_BYTES: u64 = 16 << 20;
+
+/// SIGINT, SIGTERM and SIGHUP: the first stops a run after its current step (`gpm run`) or
+/// exits at once (anything else); a second exits at once. Exit status 128 + the signal.
+mod signals {
+    use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
+
+    static RECEIVED: AtomicI32 = AtomicI32::new(0);
+    static GRACEFUL: AtomicBool = AtomicBool::new(false);
+
+    fn on_signal(sig: i32) {
+        let first = RECEIVED
+            .compare_exchange(0, sig, Ordering::SeqCst, Ordering::SeqCst)
+            .is_ok();
+        if !(first && GRACEFUL.load(Ordering::SeqCst)) {
+            std::process::exit(128 + sig);
+        }
+    }
+
+    /// Blocks the three signals in this thread (and so in every thread started later: call it
+    /// first in `main`) and waits for them on a thread of its own.
+    #[cfg(unix)]
+    pub fn install() -> std::io::Result<()> {
+        use nix::sys::signal::{SigSet, Signal};
+        let mut set = SigSet::empty();
+        for s in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGHUP] {
+            set.add(s);
+        }
+        set.thread_block().map_err(std::io::Error::from)?;
+        std::thread::Builder::new()
+            .name("signals".into())
+            .spawn(move || {
+                while let Ok(sig) = set.wait() {
+                    on_signal(sig as i32);
+                }
+            })?;
+        Ok(())
+    }
+
+    /// Ctrl-C (and the console's close and shutdown events) where there are no Unix signals.
+    #[cfg(not(unix))]
+    pub fn install() -> std::io::Result<()> {
+        ctrlc::set_handler(|| on_signal(2)).map_err(std::io::Error::other)
+    }
+
+    /// From now on the first signal only sets [`received`] (a run stops after its step).
+    pub fn graceful() {
+        GRACEFUL.store(true, Ordering::SeqCst);
+    }
+
+    /// The first signal received, if any.
+    pub fn received() -> Option<i32> {
+        match RECEIVED.load(Ordering::SeqCst) {
+            0 => None,
+            s => Some(s),
+        }
+    }
+
+    /// The signal's name.
+    pub fn name(sig: i32) -> &'static str {
+        match sig {
+            1 => "SIGHUP",
+            2 => "SIGINT",
+            15 => "SIGTERM",
+            _ => "a signal",
+        }
+    }
+}
 
 #[derive(Parser, Debug)]
 #[command(
@@ -36,7 +130,7 @@ use std::sync::Arc;
     about = "Incompressible particle flows with the generalized particle method"
 )]
 struct Cli {
-    /// Rayon worker threads (default: all cores).
+    /// Rayon worker threads, 1 to 4 × the available cores (default: all cores).
     #[arg(long, global = true)]
     threads: Option<usize>,
     #[command(subcommand)]
@@ -117,6 +211,10 @@ struct RunArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Run even when the estimated memory exceeds the available memory or the estimated step
+    /// count exceeds 10⁶.
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Args, Debug)]
@@ -148,18 +246,45 @@ struct ReplayArgs {
 }
 
 fn main() -> ExitCode {
+    // before any other thread exists, so that every thread inherits the blocked signals
+    if let Err(e) = signals::install() {
+        errln!("warning: signals will not finish the recording: {e}");
+    }
     let cli = Cli::parse();
-    match real_main(cli) {
+    let result = real_main(cli).and_then(|code| {
+        std::io::stdout()
+            .flush()
+            .context("writing to standard output")?;
+        Ok(code)
+    });
+    match result {
         Ok(code) => code,
+        Err(e) if broken_pipe(&e) => ExitCode::SUCCESS, // `gpm replay f | head -1`
         Err(e) => {
-            eprintln!("error: {e:#}");
+            errln!("error: {e:#}");
             ExitCode::FAILURE
         }
     }
 }
 
+/// True when the error is a write to a closed pipe (the reader has gone: nothing to report).
+fn broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
 fn real_main(cli: Cli) -> Result<ExitCode> {
     if let Some(t) = cli.threads {
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let max = 4 * cores;
+        if t == 0 || t > max {
+            bail!(
+                "--threads {t}: must be in 1..={max} (4 × the {cores} available cores; more \
+                 threads than cores only add overhead)"
+            );
+        }
         rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build_global()
@@ -171,25 +296,21 @@ fn real_main(cli: Cli) -> Result<ExitCode> {
     }
 }
 
-/// Reads a scene configuration: a bare config, or a `/config` message's `{"scene", "config"}`.
-fn load_config<T: serde::de::DeserializeOwned>(path: &Path, scene: &str) -> Result<T> {
+/// Reads a scene configuration: a bare config, or a `/config` message's `{"scene", "config"}`
+/// (strict: duplicate keys, positional arrays and unknown keys are errors naming the key).
+fn load_config<S: gpm::scene::SceneParams>(path: &Path) -> Result<SceneConfig<S>> {
+    let m = check_input_file(path)?;
+    if m.len() > MAX_CONFIG_BYTES {
+        bail!(
+            "{}: {} bytes is too large for a configuration (at most {MAX_CONFIG_BYTES})",
+            path.display(),
+            m.len()
+        );
+    }
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut v: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
-    if let Some(inner) = v.get("config").cloned() {
-        if let Some(s) = v.get("scene").and_then(|s| s.as_str()) {
-            if s != scene {
-                bail!(
-                    "{} configures the scene '{s}', not '{scene}'",
-                    path.display()
-                );
-            }
-        }
-        v = inner;
-    }
-    gpm::scene::config_from_value(v)
-        .with_context(|| format!("invalid {scene} configuration in {}", path.display()))
+    gpm::scene::scene_config_from_json::<S>(&text)
+        .with_context(|| format!("invalid {} configuration in {}", S::NAME, path.display()))
 }
 
 fn progress_bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
@@ -204,38 +325,62 @@ fn progress_bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
 }
 
 fn run(a: RunArgs) -> Result<ExitCode> {
-    // Ctrl-C: stop after the current step and finish the file; a second Ctrl-C exits at once
-    // (the file then keeps every flushed step).
-    let stop = Arc::new(AtomicBool::new(false));
-    let presses = Arc::new(AtomicUsize::new(0));
-    {
-        let (stop, presses) = (stop.clone(), presses.clone());
-        ctrlc::set_handler(move || {
-            stop.store(true, Ordering::SeqCst);
-            if presses.fetch_add(1, Ordering::SeqCst) >= 1 {
-                std::process::exit(130);
-            }
-        })
-        .context("installing the Ctrl-C handler")?;
-    }
+    // a signal now stops the run after the current step and the file is finished
+    signals::graceful();
     let scene = a.scene.clone();
-    gpm::scene::visit_scene(&scene, RunScene { a, stop })?
+    gpm::scene::visit_scene(&scene, RunScene { a })?
 }
 
 /// `gpm run <scene>` for any registered scene.
 struct RunScene {
     a: RunArgs,
-    stop: Arc<AtomicBool>,
+}
+
+/// Available memory in bytes (`MemAvailable` of `/proc/meminfo`; `None` where unknown).
+fn available_memory() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
+/// Refuses a run whose estimated memory exceeds the available memory, or whose estimated step
+/// count (`t_end / Δt` with the first step's Δt) exceeds [`MAX_STEPS`], unless `force`.
+fn check_estimates<const D: usize, S: Scene<D>>(cfg: &SceneConfig<S>, force: bool) -> Result<()> {
+    let (particles, bytes) = cfg.memory_estimate::<D>();
+    if let Some(avail) = available_memory() {
+        if bytes > avail && !force {
+            bail!(
+                "the run needs about {:.1} GB ({particles:.2e} particles with n = {}) but {:.1} \
+                 GB are available: lower --n, or pass --force to try anyway",
+                bytes / 1e9,
+                cfg.n,
+                avail / 1e9
+            );
+        }
+    }
+    let sim = S::build(cfg).context("setting up the run")?;
+    let (dt, limit) = sim.time_step();
+    let steps = (cfg.t_end - sim.time) / dt;
+    if (steps.is_nan() || steps > MAX_STEPS) && !force {
+        bail!(
+            "the run would take about {steps:.2e} steps (t_end = {} with a first time step of \
+             {dt:.3e}, set by {limit:?}), more than {MAX_STEPS:.0e}: shorten t_end, enlarge the \
+             time step, or pass --force",
+            cfg.t_end
+        );
+    }
+    Ok(())
 }
 
 impl SceneVisitor for RunScene {
     type Output = Result<ExitCode>;
 
     fn visit<const D: usize, S: Scene<D>>(self) -> Result<ExitCode> {
-        let RunScene { a, stop } = self;
+        let RunScene { a } = self;
         let name = S::NAME;
         let mut cfg: SceneConfig<S> = match &a.config {
-            Some(p) => load_config(p, name)?,
+            Some(p) => load_config::<S>(p)?,
             None => Default::default(),
         };
         override_opt(&mut cfg.re, a.re);
@@ -248,6 +393,7 @@ impl SceneVisitor for RunScene {
         override_opt(&mut cfg.motion, a.motion);
         cfg.validate()
             .with_context(|| format!("invalid {name} configuration"))?;
+        check_estimates::<D, S>(&cfg, a.force)?;
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
         let path = a.out.join("run.mcap");
         let options = RecorderOptions {
@@ -264,39 +410,42 @@ impl SceneVisitor for RunScene {
             options,
             &cfg.record_header(),
             |_| {},
-            |rep, _| Ok(observe(&pb, rep, t_end, &stop)),
+            |rep, _| Ok(observe(&pb, rep, t_end)),
         )?;
         pb.finish_and_clear();
         // the file is finished (or its error known) before the run's outcome is reported
         let record = match done.record {
             Ok(s) => {
                 for note in &s.notes {
-                    eprintln!("note: {note}");
+                    errln!("note: {note}");
                 }
                 Some(s)
             }
             Err(e) => {
-                eprintln!("error: finishing the recording failed: {e}");
+                errln!("error: finishing the recording failed: {e}");
                 None
             }
         };
         match done.run {
             Ok(run) => {
                 if let Some(step) = run.interrupted() {
+                    let sig = signals::received().unwrap_or(2);
                     match &record {
-                        Some(r) => eprintln!(
-                            "interrupted after step {step}; {} finished cleanly ({} steps, {} bytes)",
+                        Some(r) if a.record != RecordLevel::None => errln!(
+                            "interrupted by {} after step {step}; {} finished cleanly ({} steps, \
+                             {} bytes)",
+                            signals::name(sig),
                             path.display(),
                             r.steps,
                             r.bytes
                         ),
-                        None => eprintln!("interrupted after step {step}"),
+                        _ => errln!("interrupted by {} after step {step}", signals::name(sig)),
                     }
-                    return Ok(ExitCode::from(130));
+                    return Ok(ExitCode::from((128 + sig).clamp(0, 255) as u8));
                 }
                 let out =
                     serde_json::json!({ "scene": name, "result": run.result, "record": record });
-                println!("{}", serde_json::to_string_pretty(&out)?);
+                outln!("{}", serde_json::to_string_pretty(&out)?)?;
                 Ok(if record.is_some() || a.record == RecordLevel::None {
                     ExitCode::SUCCESS
                 } else {
@@ -305,12 +454,15 @@ impl SceneVisitor for RunScene {
             }
             Err(e) => {
                 if let Some(r) = &record {
-                    if a.record != RecordLevel::None {
-                        eprintln!(
-                            "the recording of the {} steps before the failure is in {}",
+                    match &r.path {
+                        Some(p) if a.record != RecordLevel::None => errln!(
+                            "the recording of the {} steps before the failure is in {} ({} is \
+                             left as it was)",
                             r.steps,
+                            p.display(),
                             path.display()
-                        );
+                        ),
+                        _ => {}
                     }
                 }
                 Err(anyhow::Error::new(e).context(format!("{name} run failed")))
@@ -325,13 +477,8 @@ fn override_opt<T>(slot: &mut T, v: Option<T>) {
     }
 }
 
-/// Progress, and the Ctrl-C request: stop after this step.
-fn observe(
-    pb: &ProgressBar,
-    rep: &gpm::flow::FlowReport,
-    t_end: f64,
-    stop: &AtomicBool,
-) -> ControlFlow<()> {
+/// Progress, and a signal's request: stop after this step.
+fn observe(pb: &ProgressBar, rep: &gpm::flow::FlowReport, t_end: f64) -> ControlFlow<()> {
     pb.set_position(((rep.time / t_end).clamp(0.0, 1.0) * 1000.0) as u64);
     if rep.step % 10 == 1 {
         pb.set_message(format!(
@@ -343,7 +490,7 @@ fn observe(
             rep.projection.stability_ratio
         ));
     }
-    if stop.load(Ordering::SeqCst) {
+    if signals::received().is_some() {
         ControlFlow::Break(())
     } else {
         ControlFlow::Continue(())
@@ -352,40 +499,49 @@ fn observe(
 
 fn replay(a: ReplayArgs) -> Result<ExitCode> {
     let bytes_template = "{spinner} {msg} [{bar:40}] {bytes}/{total_bytes}";
-    let len = std::fs::metadata(&a.file)
-        .with_context(|| format!("reading {}", a.file.display()))?
-        .len();
+    let len = check_input_file(&a.file)?.len();
+    for out in [&a.csv, &a.plot].into_iter().flatten() {
+        check_output_file(out, &a.file)?;
+    }
+    if let Some(dir) = &a.vtk {
+        if gpm::record::output::same_file(dir, &a.file) {
+            bail!(
+                "{}: is the input file: refusing to write VTK files there",
+                dir.display()
+            );
+        }
+    }
     let pb = progress_bar(len, a.quiet, bytes_template);
     pb.set_message("reading");
     let replay = Replay::open_with_progress(&a.file, |done, _| pb.set_position(done))?;
     pb.finish_and_clear();
     let summary = replay.summary();
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
+        outln!("{}", serde_json::to_string_pretty(&summary)?)?;
     } else {
-        print!("{summary}");
+        write!(std::io::stdout().lock(), "{summary}").context("writing to standard output")?;
     }
     if let Some(d) = replay.damage() {
         if a.strict {
-            eprintln!("error: {}: {d}", a.file.display());
+            errln!("error: {}: {d}", a.file.display());
             return Ok(ExitCode::from(2));
         }
-        eprintln!("warning: {}: {d}", a.file.display());
+        errln!("warning: {}: {d}", a.file.display());
     }
     if let Some(csv) = &a.csv {
         replay.write_csv(csv)?;
-        eprintln!("wrote {} ({} rows)", csv.display(), replay.steps.len());
+        errln!("wrote {} ({} rows)", csv.display(), replay.steps.len());
     }
     if let Some(png) = &a.plot {
         replay.plot(png)?;
-        eprintln!("wrote {}", png.display());
+        errln!("wrote {}", png.display());
     }
     if let Some(dir) = &a.vtk {
         let pb = progress_bar(len, a.quiet, bytes_template);
         pb.set_message("vtk");
         let out = export_vtk(&a.file, dir, |done, _| pb.set_position(done))?;
         pb.finish_and_clear();
-        eprintln!(
+        errln!(
             "wrote {} snapshots and {}",
             out.files.len(),
             out.collection.display()
@@ -397,31 +553,31 @@ fn replay(a: ReplayArgs) -> Result<ExitCode> {
         let r = rerun_file(&a.file, |done, _| pb.set_position(done))?;
         pb.finish_and_clear();
         if r.steps.is_empty() {
-            println!(
+            outln!(
                 "rerun: the file has no /projection_input messages (record with --record full \
                  and the projection capture on)"
-            );
+            )?;
         } else {
             let (du, dp, dphi) = r.max_differences();
             let (ru, rp, rphi) = r.max_relative_differences();
-            println!(
+            outln!(
                 "rerun: {} projections re-run, {} bit-identical (recorded with {:?} threads, \
                  re-run with {})",
                 r.steps.len(),
                 r.identical(),
                 r.recorded_threads,
                 r.threads
-            );
-            println!("  max |du|   {du:.3e}  (relative {ru:.3e})");
-            println!("  max |dp|   {dp:.3e}  (relative {rp:.3e})");
-            println!("  max |dphi| {dphi:.3e}  (relative {rphi:.3e})");
+            )?;
+            outln!("  max |du|   {du:.3e}  (relative {ru:.3e})")?;
+            outln!("  max |dp|   {dp:.3e}  (relative {rp:.3e})")?;
+            outln!("  max |dphi| {dphi:.3e}  (relative {rphi:.3e})")?;
             if r.identical() < r.steps.len() {
-                println!(
+                outln!(
                     "  not identical: with Cholesky the result is reproducible only when the \
                      neighbour candidates (the matrix pattern) match the run's, which a moving \
                      (Lagrangian) run does not guarantee; with CG the reductions depend on the \
                      thread count and rayon's work split (see gpm::record::rerun)."
-                );
+                )?;
             }
         }
     }

@@ -38,9 +38,12 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod output;
 pub mod replay;
 pub mod rerun;
 pub mod schema;
+
+pub use output::OutputLock;
 
 use crate::boundary::Boundary;
 use crate::flow::{DtLimit, FlowReport, Simulation};
@@ -393,7 +396,10 @@ impl<'a, const D: usize> StepRecord<'a, D> {
 }
 
 struct Inner {
+    /// The file being written ([`output::partial_path`] of `target`).
     path: PathBuf,
+    /// Where the finished file goes.
+    target: PathBuf,
     writer: mcap::Writer<BufWriter<File>>,
     ch_diagnostics: u16,
     ch_particles: u16,
@@ -428,11 +434,18 @@ impl std::fmt::Debug for Recorder {
 }
 
 impl Recorder {
-    /// Creates (truncates) `path` and writes `/config` with `config`: the run's configuration,
+    /// Starts a recording meant for `path` and writes `/config` with `config`: the run's configuration,
     /// any serde-serialisable value, recorded verbatim as JSON (for `gpm run` it is
     /// `{"scene": "cavity", "config": {...}}`; a loop of your own passes its own settings, or
     /// `&()` for none, recorded as `null`). Snapshots every
     /// `particles_every` steps at level `full`; flushes every step; zstd chunks.
+    ///
+    /// The file is written as `path.partial` ([`output::partial_path`]; created or truncated)
+    /// and renamed to `path` by [`finish`](Self::finish), so an earlier recording at `path` is
+    /// replaced only by a finished one; a killed process leaves `path.partial`, which
+    /// [`replay::Replay`] reads up to its last flushed step. The recorder takes no lock: two
+    /// writers of one path are kept apart by an [`OutputLock`] on the directory
+    /// ([`crate::scene::run_recorded`] takes one).
     pub fn create<C: Serialize + ?Sized>(
         path: impl AsRef<Path>,
         level: RecordLevel,
@@ -464,7 +477,8 @@ impl Recorder {
             return Ok(rec);
         }
         let t0 = Instant::now();
-        let path = path.as_ref().to_path_buf();
+        let target = path.as_ref().to_path_buf();
+        let path = output::partial_path(&target);
         let config = serde_json::to_value(config).map_err(|e| RecordError::Json {
             path: path.clone(),
             what: "/config".into(),
@@ -534,6 +548,7 @@ impl Recorder {
             ch_particles: ids.get(schema::TOPIC_PARTICLES).copied().unwrap_or(0),
             ch_projection: ids.get(schema::TOPIC_PROJECTION).copied().unwrap_or(0),
             path,
+            target,
             writer,
             buf: Vec::with_capacity(4096),
             since_flush: 0,
@@ -545,9 +560,16 @@ impl Recorder {
         Ok(rec)
     }
 
-    /// The file being written (`None` at level `none`).
+    /// The file being written, `path.partial` until [`finish`](Self::finish) renames it
+    /// (`None` at level `none`).
     pub fn path(&self) -> Option<&Path> {
         self.inner.as_ref().map(|i| i.path.as_path())
+    }
+
+    /// Where the finished file goes (the `path` given to [`create`](Self::create); `None` at
+    /// level `none`).
+    pub fn target(&self) -> Option<&Path> {
+        self.inner.as_ref().map(|i| i.target.as_path())
     }
 
     /// The options in force.
@@ -566,7 +588,7 @@ impl Recorder {
     pub fn wants_snapshot(&self, step: u64) -> bool {
         self.inner.is_some()
             && self.options.level == RecordLevel::Full
-            && (step.max(1) - 1) % self.options.particles_every == 0
+            && (step.max(1) - 1).is_multiple_of(self.options.particles_every)
     }
 
     /// Records one step of a [`Simulation`]: [`record`](Self::record) with the flow report's
@@ -672,15 +694,43 @@ impl Recorder {
         Ok(())
     }
 
-    /// Writes the summary and footer, flushes and syncs the file, and reports any error.
+    /// Writes the summary and footer, flushes and syncs the file, renames it to its target
+    /// (replacing an earlier file there) and reports any error. On an error the file stays at
+    /// its `.partial` name (every flushed step reads back) and the target is untouched.
     pub fn finish(self) -> Result<RecordSummary, RecordError> {
+        let (mut out, inner) = self.close()?;
+        if let Some((partial, target)) = inner {
+            std::fs::rename(&partial, &target).map_err(|e| RecordError::io(&target, e))?;
+            sync_dir(&target);
+            out.path = Some(target);
+        }
+        Ok(out)
+    }
+
+    /// [`finish`](Self::finish) for a run that failed: the file is finished (every step before
+    /// the failure reads back, and the `/config` even without a step) and kept as
+    /// [`output::failed_path`] of the target (`run.failed.mcap`, replacing an earlier failed
+    /// one), so that a good earlier recording at the target is not replaced.
+    pub fn finish_failed(self) -> Result<RecordSummary, RecordError> {
+        let (mut out, inner) = self.close()?;
+        if let Some((partial, target)) = inner {
+            let failed = output::failed_path(&target);
+            std::fs::rename(&partial, &failed).map_err(|e| RecordError::io(&failed, e))?;
+            sync_dir(&failed);
+            out.path = Some(failed);
+        }
+        Ok(out)
+    }
+
+    /// Footer, flush and sync; the summary (its `path` the partial file) and the paths.
+    fn close(self) -> Result<(RecordSummary, Option<(PathBuf, PathBuf)>), RecordError> {
         let mut out = RecordSummary {
             steps: self.steps,
             seconds: self.seconds,
             ..Default::default()
         };
         let Some(mut inner) = self.inner else {
-            return Ok(out);
+            return Ok((out, None));
         };
         let t0 = Instant::now();
         let path = inner.path.clone();
@@ -715,8 +765,23 @@ impl Recorder {
             );
         }
         out.messages = inner.counts;
-        out.path = Some(path);
-        Ok(out)
+        out.path = Some(path.clone());
+        Ok((out, Some((path, inner.target))))
+    }
+}
+
+/// Syncs the directory holding `path` so that a rename in it is durable (best effort: not every
+/// platform can open a directory).
+fn sync_dir(path: &Path) {
+    if let Some(dir) = path.parent() {
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        if let Ok(d) = File::open(dir) {
+            let _ = d.sync_all();
+        }
     }
 }
 

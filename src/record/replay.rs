@@ -209,6 +209,8 @@ pub fn scan(
     mut progress: impl FnMut(u64, u64),
 ) -> Result<Scan, RecordError> {
     let io = |e| RecordError::io(path, e);
+    // a FIFO or a device would block or never end
+    super::output::check_input_file(path)?;
     let file = File::open(path).map_err(io)?;
     let file_len = file.metadata().map_err(io)?.len();
     let mut r = BufReader::with_capacity(1 << 16, file);
@@ -850,10 +852,12 @@ impl Replay {
         out
     }
 
-    /// Writes the diagnostics table as CSV (one row per step, a header line first).
+    /// Writes the diagnostics table as CSV (one row per step, a header line first). A value
+    /// that is not finite is an empty cell (never `NaN` or `inf`); the file is written under a
+    /// temporary name and renamed when complete ([`super::output::write_atomic`]).
     pub fn write_csv(&self, out: &Path) -> Result<(), RecordError> {
         let io = |e| RecordError::io(out, e);
-        let mut w = BufWriter::new(File::create(out).map_err(io)?);
+        let mut w = Vec::new();
         writeln!(
             w,
             "step,time,dt,dt_limit,components,anchored,floating,isolated,allowed_floating,\
@@ -874,8 +878,8 @@ impl Replay {
                 w,
                 "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
-                d.time,
-                d.dt,
+                Num(d.time),
+                Num(d.dt),
                 dt_limit,
                 c.components,
                 c.anchored,
@@ -883,38 +887,37 @@ impl Replay {
                 c.isolated,
                 c.allowed_floating,
                 c.ok,
-                d.c0,
-                d.stability_ratio,
-                d.min_spacing,
-                d.correction_ratio,
-                d.energy_growth.map(|g| g.to_string()).unwrap_or_default(),
+                Num(d.c0),
+                Num(d.stability_ratio),
+                Num(d.min_spacing),
+                Num(d.correction_ratio),
+                d.energy_growth.map(|g| Num(g).to_string()).unwrap_or_default(),
                 d.solve.solver,
                 d.solve.unknowns,
                 d.solve.nnz,
                 d.solve.iterations,
-                d.solve.abs_residual,
-                d.solve.rel_residual,
-                d.solve.compatibility_defect,
-                d.div_before,
-                d.div_after,
-                d.kinetic_energy,
-                d.max_speed,
+                Num(d.solve.abs_residual),
+                Num(d.solve.rel_residual),
+                Num(d.solve.compatibility_defect),
+                Num(d.div_before),
+                Num(d.div_after),
+                Num(d.kinetic_energy),
+                Num(d.max_speed),
                 d.neighbors_rebuilt,
-                d.max_shift,
-                t.neighbors,
-                t.predictor,
-                t.diagnostics,
-                t.source,
-                t.solve,
-                t.correction,
-                t.advect,
-                t.total,
-                t.record
+                Num(d.max_shift),
+                Num(t.neighbors),
+                Num(t.predictor),
+                Num(t.diagnostics),
+                Num(t.source),
+                Num(t.solve),
+                Num(t.correction),
+                Num(t.advect),
+                Num(t.total),
+                Num(t.record)
             )
             .map_err(io)?;
         }
-        w.flush().map_err(io)?;
-        Ok(())
+        super::output::write_atomic(out, &w).map_err(io)
     }
 
     /// Draws the main time series into one PNG: kinetic energy and maximum speed; `c0` and the
@@ -1055,6 +1058,19 @@ pub fn export_vtk(
     })
 }
 
+/// A number for a CSV cell: empty when not finite (a missing value, never `NaN` or `inf`).
+struct Num(f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.0.is_finite() {
+            write!(f, "{}", self.0)
+        } else {
+            Ok(())
+        }
+    }
+}
+
 enum VtpError {
     Io(std::io::Error),
     Data(String),
@@ -1070,6 +1086,22 @@ fn write_vtp(file: &Path, cloud: &PointCloud) -> Result<(), VtpError> {
             .and_then(|k| cols[k].as_ref())
     };
     let n = cols.iter().flatten().map(|c| c.len()).next().unwrap_or(0);
+    for (k, c) in cols.iter().enumerate() {
+        let Some(c) = c else { continue };
+        if c.len() != n {
+            return Err(VtpError::Data(format!(
+                "field '{}' has {} values for {n} points",
+                names[k],
+                c.len()
+            )));
+        }
+        if let Some(i) = c.iter().position(|v| !v.is_finite()) {
+            return Err(VtpError::Data(format!(
+                "point {i}: field '{}' is not finite ({}): not written to a VTK file",
+                names[k], c[i]
+            )));
+        }
+    }
     let zero = vec![0.0; n];
     let coord = |name: &str| col(name).unwrap_or(&zero);
     let (x, y, z) = (coord("x"), coord("y"), coord("z"));

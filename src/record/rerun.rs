@@ -1,6 +1,8 @@
 //! Re-running recorded projections through the current build (`gpm replay --rerun`).
 //!
-//! For each `/projection_input` message: rebuild the neighbour list from the recorded positions
+//! For each `/projection_input` message: check the recorded particles as the library checks a
+//! caller's (lengths, roles and ghost sources, finite positions, positive volumes; a corrupt file
+//! is a typed error, never a panic), rebuild the neighbour list from the recorded positions
 //! and [`NeighborSpec`](super::schema::NeighborSpec), the boundary from its
 //! [`BoundarySpec`](super::schema::BoundarySpec), set the particles (positions, volumes, roles,
 //! `p = pⁿ`) and `u*`, call [`ProjectionStep::project`] with a fresh step, and compare `u`, `p`
@@ -24,7 +26,7 @@ use super::schema::{decode_roles, ProjectionInput, TOPIC_PROJECTION};
 use super::RecordError;
 use crate::neighbors::NeighborList;
 use crate::particles::Particles;
-use crate::projection::ProjectionStep;
+use crate::projection::{checks, ProjectionStep};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -134,11 +136,16 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     let config = m.neighbors.to_config::<D>()?;
     let boundary = m.boundary.build::<D>()?;
     let params = m.params.to_params::<D>()?;
-    let nl = NeighborList::build(config, &x)?;
     let mut particles = Particles::<D>::new();
     for i in 0..n {
         particles.push(x[i], u_star[i], p_in[i], vol[i], role[i]);
     }
+    // the recorded bookkeeping is checked as the library checks a caller's particles (roles in
+    // order, every ghost's source a fluid particle before the ghosts, finite positions and
+    // volumes) before anything is built from it; `project` checks the rest (ghost placement,
+    // the list against the positions, h)
+    checks::check_particles(&particles, checks::Reads { velocity: false })?;
+    let nl = NeighborList::build(config, &x)?;
     let mut step = ProjectionStep::<D>::new();
     step.phi = phi_in;
     step.project(

@@ -702,7 +702,7 @@ impl PointCloud {
             .decode(self.data.as_bytes())
             .map_err(|e| format!("point cloud data is not base64: {e}"))?;
         let stride = self.point_stride as usize;
-        if stride == 0 || bytes.len() % stride != 0 {
+        if stride == 0 || !bytes.len().is_multiple_of(stride) {
             return Err(format!(
                 "point cloud data has {} bytes, not a multiple of the stride {stride}",
                 bytes.len()

@@ -24,15 +24,16 @@ use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::flow::{
-    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, StabilityGuard,
-    TimeStepLimits, VolumeRule,
+    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
 };
 use crate::kernel::Weight;
 use crate::neighbors::NeighborConfig;
 use crate::poisson::SolveParams;
 use crate::projection::{ProjectionParams, Scheme};
 use crate::record::schema::ToBoundarySpec;
-use crate::record::{RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions};
+use crate::record::{
+    OutputLock, RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions,
+};
 use serde::de::{DeserializeOwned, DeserializeSeed, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt;
@@ -44,21 +45,26 @@ use std::time::Instant;
 // ---------------------------------------------------------------------------------------------
 // configuration
 
+/// Largest `n` (particles per side) a configuration accepts; the memory of a run is checked
+/// separately ([`FlowConfig::memory_estimate`], `gpm run` refuses a run that does not fit).
+pub const MAX_N: usize = 10_000;
+
 /// The configuration keys every flow scene shares (flattened into each [`SceneConfig`]).
 ///
 /// The physical viscosity is `ν = U / Re` with the scene's velocity scale `U` (lid speed,
 /// vortex amplitude, …); the particle spacing is `Δx = 1/n` on the unit square.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FlowConfig {
-    /// Reynolds number `U L / ν`.
+    /// Reynolds number `U L / ν`, positive and finite.
     pub re: f64,
-    /// Fluid particles per side.
+    /// Fluid particles per side, from the scene's `MIN_N` to [`MAX_N`].
     pub n: usize,
-    /// End time (a scene may stop earlier, e.g. the cavity once steady).
+    /// End time (a scene may stop earlier, e.g. the cavity once steady), positive and finite;
+    /// a run must take at least one step.
     pub t_end: f64,
-    /// Influence radius over particle spacing, `h/Δx`.
+    /// Influence radius over particle spacing, `h/Δx` in (1, 8].
     pub h_over_dx: f64,
-    /// Neighbour skin over `h`.
+    /// Neighbour skin over `h`, in [0, 2].
     pub skin_over_h: f64,
     /// Reference weight.
     pub weight: Weight,
@@ -70,7 +76,7 @@ pub struct FlowConfig {
     pub motion: Motion,
     /// Integrator of the explicit terms.
     pub integrator: Integrator,
-    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit).
+    /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
     pub viscous_theta: f64,
     /// Particle shifting (Lagrangian runs only).
     pub shifting: Option<Shifting>,
@@ -78,7 +84,8 @@ pub struct FlowConfig {
     pub volumes: VolumeRule,
     /// Pair weights (`"plain"` or `"moment"`).
     pub pair_weights: crate::pair_weights::PairWeights,
-    /// Time-step limits.
+    /// Time-step limits: `cfl`, `visc`, `force` in (0, 1], `u_ref` in [0, 10⁶], `dt_max` and
+    /// `dt_fixed` positive and finite when set (see [`FlowConfig::validate`]).
     pub limits: TimeStepLimits,
     /// Linear solver.
     pub solve: SolveParams,
@@ -103,10 +110,7 @@ impl Default for FlowConfig {
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
             pair_weights: Default::default(),
-            limits: TimeStepLimits {
-                guard: StabilityGuard::blow_up(),
-                ..TimeStepLimits::default()
-            },
+            limits: TimeStepLimits::default(),
             solve: SolveParams::default(),
         }
     }
@@ -130,11 +134,11 @@ impl FlowConfig {
                 "the Reynolds number must be positive and finite",
             );
         }
-        if self.n < min_n || self.n > 20_000 {
+        if self.n < min_n || self.n > MAX_N {
             return bad(
                 "n",
                 self.n as f64,
-                &format!("particles per side must be in {min_n}..=20000"),
+                &format!("particles per side must be in {min_n}..={MAX_N}"),
             );
         }
         if !(self.t_end > 0.0 && self.t_end.is_finite()) {
@@ -165,11 +169,45 @@ impl FlowConfig {
             return bad("viscous_theta", self.viscous_theta, "must be in [0, 1]");
         }
         self.limits.validate()?;
+        for (name, v) in [
+            ("limits.cfl", self.limits.cfl),
+            ("limits.visc", self.limits.visc),
+            ("limits.force", self.limits.force),
+        ] {
+            if v > 1.0 {
+                return bad(
+                    name,
+                    v,
+                    "time-step factors must be in (0, 1] (a particle may not cross more than h, \
+                     nor the explicit viscous or body-force limit be exceeded, in one step)",
+                );
+            }
+        }
+        if self.limits.u_ref > 1e6 {
+            return bad("limits.u_ref", self.limits.u_ref, "must be in [0, 1e6]");
+        }
         self.solve.validate()?;
         match &self.shifting {
             Some(s) => s.validate(),
             None => Ok(()),
         }
+    }
+
+    /// An upper estimate of the particles (ghosts included) and of the peak memory of a run in
+    /// `D` dimensions, before anything is allocated: `(n + 2 r)^D` particles with
+    /// `r = (h/Δx)(1 + skin/h)` ghost layers, and `1 kB + 60 B` per neighbour candidate
+    /// (`π r²` in 2D, `4/3 π r³` in 3D) for each. Measured peaks (README, Performance: 2D,
+    /// `h = 3Δx`: 293 MB at 10⁵ and 2.7 GB at 10⁶ particles) are 1.3–1.5× below it.
+    pub fn memory_estimate<const D: usize>(&self) -> (f64, f64) {
+        let r = self.h_over_dx * (1.0 + self.skin_over_h);
+        let side = self.n as f64 + 2.0 * r.ceil();
+        let particles = side.powi(D as i32);
+        let candidates = if D == 3 {
+            4.0 / 3.0 * std::f64::consts::PI * r.powi(3)
+        } else {
+            std::f64::consts::PI * r * r
+        };
+        (particles, particles * (1000.0 + 60.0 * candidates))
     }
 
     /// Particle spacing `Δx = 1/n`.
@@ -411,10 +449,11 @@ impl<'de, S: SceneParams> Visitor<'de> for KeySeed<'_, S> {
 }
 
 /// Reads a scene configuration ([`cavity::CavityConfig`], [`taylor_green::TaylorGreenConfig`])
-/// from JSON text. Unknown keys and ill-typed values are rejected with an
-/// [`InputError::Config`] naming the key (`limits.cfl`, `n`; `(top level)` for the document
-/// itself); the values are checked by the configuration's own `validate`, which the scene's
-/// `build` calls.
+/// from JSON text, strictly: the document must be one JSON object; duplicate keys (at any depth),
+/// unknown keys, ill-typed values and arrays given for a structure (serde would read them by
+/// position) are rejected with an [`InputError::Config`] naming the key (`limits.cfl`, `n`;
+/// `(top level)` for the document itself). The values are checked by the configuration's own
+/// `validate`, which the scene's `build` calls.
 ///
 /// ```
 /// use gpm::error::InputError;
@@ -422,32 +461,251 @@ impl<'de, S: SceneParams> Visitor<'de> for KeySeed<'_, S> {
 ///
 /// let cfg: CavityConfig = config_from_json(r#"{"re": 400, "n": 32}"#)?;
 /// assert_eq!((cfg.re, cfg.n), (400.0, 32));
-/// match config_from_json::<CavityConfig>(r#"{"limits": {"cfl": "fast"}}"#) {
-///     Err(InputError::Config { key, .. }) => assert_eq!(key, "limits.cfl"),
-///     other => panic!("{other:?}"),
+/// for (text, bad_key) in [
+///     (r#"{"limits": {"cfl": "fast"}}"#, "limits.cfl"),
+///     (r#"{"limits": {"cfl": 0.1, "cfl": 0.2}}"#, "limits.cfl"),
+///     (r#"{"limits": [0.1, 0.5]}"#, "limits"),
+/// ] {
+///     match config_from_json::<CavityConfig>(text) {
+///         Err(InputError::Config { key, .. }) => assert_eq!(key, bad_key),
+///         other => panic!("{other:?}"),
+///     }
 /// }
 /// # Ok::<(), InputError>(())
 /// ```
-pub fn config_from_json<T: DeserializeOwned>(text: &str) -> Result<T, InputError> {
-    if !text.trim_start().starts_with('{') {
-        return Err(not_an_object());
-    }
-    let mut de = serde_json::Deserializer::from_str(text);
-    let value: T = serde_path_to_error::deserialize(&mut de).map_err(config_error)?;
-    de.end().map_err(|e| InputError::Config {
-        key: "(top level)".into(),
-        reason: e.to_string(),
-    })?;
-    Ok(value)
+pub fn config_from_json<T: DeserializeOwned + Serialize + Default>(
+    text: &str,
+) -> Result<T, InputError> {
+    config_from_value(strict_json(text)?)
 }
 
 /// [`config_from_json`] for an already parsed JSON value (e.g. the `config` member of a
-/// recorded `/config` message).
-pub fn config_from_value<T: DeserializeOwned>(value: serde_json::Value) -> Result<T, InputError> {
+/// recorded `/config` message). Duplicate keys cannot be seen in a [`serde_json::Value`]
+/// (the last one won when it was parsed): parse text with [`strict_json`] first.
+pub fn config_from_value<T: DeserializeOwned + Serialize + Default>(
+    value: serde_json::Value,
+) -> Result<T, InputError> {
     if !value.is_object() {
         return Err(not_an_object());
     }
+    let reference = serde_json::to_value(T::default()).map_err(|e| InputError::Config {
+        key: "(top level)".into(),
+        reason: e.to_string(),
+    })?;
+    no_positional(&value, &reference, "")?;
     serde_path_to_error::deserialize(value).map_err(config_error)
+}
+
+/// Reads a scene's configuration file: a bare configuration, or a recording's `/config`
+/// message `{"scene": NAME, "config": {…}}` (then `scene` must be `S`'s name), strictly as
+/// [`config_from_json`]. This is what `gpm run <scene> --config FILE` reads.
+pub fn scene_config_from_json<S: SceneParams>(text: &str) -> Result<SceneConfig<S>, InputError> {
+    let mut v = strict_json(text)?;
+    let mut wrapped = false;
+    if let serde_json::Value::Object(m) = &mut v {
+        let Some(inner) = m.remove("config") else {
+            return config_from_value(v);
+        };
+        wrapped = true;
+        if let Some(scene) = m.remove("scene") {
+            match scene.as_str() {
+                Some(s) if s.trim().to_ascii_lowercase().replace('-', "_") == S::NAME => {}
+                other => {
+                    let named = other.map_or_else(|| scene.to_string(), |s| s.to_string());
+                    return Err(InputError::Config {
+                        key: "scene".into(),
+                        reason: format!(
+                            "the file configures the scene '{named}', not '{}'",
+                            S::NAME
+                        ),
+                    });
+                }
+            }
+        }
+        v = inner;
+    }
+    config_from_value(v).map_err(|e| match e {
+        InputError::Config { key, reason } if wrapped && key != "(top level)" => {
+            InputError::Config {
+                key: format!("config.{key}"),
+                reason,
+            }
+        }
+        e => e,
+    })
+}
+
+/// JSON text to a [`serde_json::Value`], rejecting what `serde_json::from_str` lets pass: a
+/// key given twice in one object (the last would silently win), named by its path
+/// (`limits.cfl`), and trailing characters. Syntax errors are [`InputError::Config`] on
+/// `(top level)` with serde's line and column. Nesting is limited by serde_json (128 levels).
+pub fn strict_json(text: &str) -> Result<serde_json::Value, InputError> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let at = std::cell::RefCell::new(None);
+    let v = StrictValue {
+        path: String::new(),
+        at: &at,
+    }
+    .deserialize(&mut de)
+    .and_then(|v| de.end().map(|_| v));
+    v.map_err(|e| InputError::Config {
+        key: at.into_inner().unwrap_or_else(|| "(top level)".into()),
+        reason: if e.is_syntax() || e.is_eof() {
+            format!("the text is not JSON: {e}")
+        } else {
+            e.to_string()
+        },
+    })
+}
+
+/// A [`serde_json::Value`] built key by key with the path of each, so that an error names the
+/// innermost key it happened under (`at` receives its path: a duplicate key, a bad value).
+struct StrictValue<'a> {
+    path: String,
+    at: &'a std::cell::RefCell<Option<String>>,
+}
+
+impl StrictValue<'_> {
+    fn child(&self, key: &str) -> String {
+        if self.path.is_empty() {
+            key.to_string()
+        } else {
+            format!("{}.{key}", self.path)
+        }
+    }
+}
+
+impl<'de> DeserializeSeed<'de> for StrictValue<'_> {
+    type Value = serde_json::Value;
+    fn deserialize<De: Deserializer<'de>>(self, d: De) -> Result<serde_json::Value, De::Error> {
+        d.deserialize_any(self)
+    }
+}
+
+impl<'de> Visitor<'de> for StrictValue<'_> {
+    type Value = serde_json::Value;
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a JSON value")
+    }
+    fn visit_bool<E>(self, v: bool) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_i64<E>(self, v: i64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_u64<E>(self, v: u64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_f64<E>(self, v: f64) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_str<E>(self, v: &str) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_string<E>(self, v: String) -> Result<serde_json::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_unit<E>(self) -> Result<serde_json::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+    fn visit_none<E>(self) -> Result<serde_json::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+    fn visit_some<De: Deserializer<'de>>(self, d: De) -> Result<serde_json::Value, De::Error> {
+        self.deserialize(d)
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(
+        self,
+        mut seq: A,
+    ) -> Result<serde_json::Value, A::Error> {
+        let mut out = Vec::new();
+        loop {
+            let path = format!("{}[{}]", self.path, out.len());
+            let next = seq.next_element_seed(StrictValue {
+                path: path.clone(),
+                at: self.at,
+            });
+            match next {
+                Ok(Some(v)) => out.push(v),
+                Ok(None) => return Ok(serde_json::Value::Array(out)),
+                Err(e) => {
+                    self.at.borrow_mut().get_or_insert(path);
+                    return Err(e);
+                }
+            }
+        }
+    }
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<serde_json::Value, A::Error> {
+        let mut out = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            let path = self.child(&key);
+            if out.contains_key(&key) {
+                let e = serde::de::Error::custom(format_args!(
+                    "duplicate field `{path}`: the key is given more than once"
+                ));
+                *self.at.borrow_mut() = Some(path);
+                return Err(e);
+            }
+            let v = map.next_value_seed(StrictValue {
+                path: path.clone(),
+                at: self.at,
+            });
+            match v {
+                Ok(v) => out.insert(key, v),
+                Err(e) => {
+                    self.at.borrow_mut().get_or_insert(path);
+                    return Err(e);
+                }
+            };
+        }
+        Ok(serde_json::Value::Object(out))
+    }
+}
+
+/// Rejects an array where the configuration type has a structure or a single value
+/// (`reference`: the type's default, serialised): serde would read `"limits": [0.1, 0.5]` by
+/// position, bypassing the key checks.
+fn no_positional(
+    v: &serde_json::Value,
+    reference: &serde_json::Value,
+    path: &str,
+) -> Result<(), InputError> {
+    use serde_json::Value;
+    let name = |k: &str| {
+        if path.is_empty() {
+            k.to_string()
+        } else {
+            format!("{path}.{k}")
+        }
+    };
+    match (v, reference) {
+        (Value::Array(_), Value::Array(_)) => Ok(()),
+        (Value::Array(_), r) => Err(InputError::Config {
+            key: if path.is_empty() {
+                "(top level)".into()
+            } else {
+                path.to_string()
+            },
+            reason: format!(
+                "an array is not accepted here: expected {} (values are read by name, not by \
+                 position)",
+                match r {
+                    Value::Object(_) => "an object of named keys",
+                    Value::Null => "a single value or null",
+                    _ => "a single value",
+                }
+            ),
+        }),
+        (Value::Object(m), Value::Object(r)) => {
+            for (k, x) in m {
+                if let Some(rx) = r.get(k) {
+                    no_positional(x, rx, &name(k))?;
+                }
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
 }
 
 /// serde would read a JSON array positionally into a configuration struct (`[100, 32]` as
@@ -649,23 +907,32 @@ impl<const D: usize, S: Scene<D>> SceneRun<D, S> {
     }
 
     /// Writes the scene's tables and `summary.json` (pretty JSON) into `dir` (created if
-    /// missing); returns the files written.
+    /// missing); returns the files written. Each file is written under a temporary name and
+    /// renamed when complete ([`write_atomic`](crate::record::output::write_atomic)); a table
+    /// holding a value that is not finite (`NaN`, `inf`) is refused (an
+    /// [`std::io::ErrorKind::InvalidData`] error naming the file, row and column) and nothing
+    /// more is written; non-finite numbers in the summary are written as `null`.
     pub fn write_tables(
         &self,
         dir: &Path,
         cfg: &SceneConfig<S>,
     ) -> std::io::Result<Vec<std::path::PathBuf>> {
+        use crate::record::output::write_atomic;
         std::fs::create_dir_all(dir)?;
+        let tables = S::tables(cfg, &self.result);
+        for t in &tables {
+            check_finite_table(t)?;
+        }
         let mut written = Vec::new();
-        for t in S::tables(cfg, &self.result) {
+        for t in tables {
             let path = dir.join(&t.name);
-            std::fs::write(&path, t.text)?;
+            write_atomic(&path, t.text.as_bytes())?;
             written.push(path);
         }
         let path = dir.join("summary.json");
         let text =
             serde_json::to_string_pretty(&self.summary(cfg)).map_err(std::io::Error::other)?;
-        std::fs::write(&path, text)?;
+        write_atomic(&path, text.as_bytes())?;
         written.push(path);
         Ok(written)
     }
@@ -679,6 +946,27 @@ impl<const D: usize, S: Scene<D>> SceneRun<D, S> {
     ) -> Result<(), crate::plot::PlotError> {
         S::write_plots(dir, cfg, &self.result, &self.sim)
     }
+}
+
+/// Refuses a CSV table with a cell that is not a finite number (`NaN`, `inf`, …).
+fn check_finite_table(t: &Table) -> std::io::Result<()> {
+    for (row, line) in t.text.lines().enumerate() {
+        for (col, cell) in line.split(',').enumerate() {
+            let c = cell.trim();
+            if c.parse::<f64>().is_ok_and(|v| !v.is_finite()) {
+                return Err(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!(
+                        "{}: line {} column {}: '{c}' is not finite; the table is not written",
+                        t.name,
+                        row + 1,
+                        col + 1
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// What an observer returns: go on, or stop the run after this step (not an error: the run
@@ -700,6 +988,18 @@ pub fn run_scene<const D: usize, S: Scene<D>>(
     setup(&mut sim);
     let mut state = S::start(cfg, &sim);
     let mut end = RunEnd::EndTime;
+    if !(sim.time < cfg.t_end - 1e-12) {
+        // no step would be taken: the "result" would be the initial field's
+        return Err(InputError::parameter(
+            "t_end",
+            cfg.t_end,
+            format!(
+                "the run would take no step (it starts at t = {}): nothing to report",
+                sim.time
+            ),
+        )
+        .into());
+    }
     while sim.time < cfg.t_end - 1e-12 {
         let rep = if S::LAND_ON_T_END {
             sim.advance_toward(cfg.t_end)?
@@ -725,14 +1025,25 @@ pub fn run_scene<const D: usize, S: Scene<D>>(
 pub struct RecordedRun<const D: usize, S: Scene<D>> {
     /// The run (an error is the run's failure; every step before it is in the file).
     pub run: Result<SceneRun<D, S>, Error>,
-    /// The finished recording.
+    /// The finished recording (its `path` says where it went).
     pub record: Result<RecordSummary, RecordError>,
+    /// The output directory's lock, held until this is dropped, so that the caller's own files
+    /// (tables, plots) are written while the directory is still its own.
+    pub lock: OutputLock,
 }
 
 /// [`run_scene`] recording every step into `path` ([`Recorder`]; the `/config` message is
 /// `header`, usually [`SceneConfig::record_header`]). At [`RecordLevel::Full`] the projection
 /// inputs are captured. The file is finished whatever happened, so every step before a failure
-/// or a stop reads back. Fails only when the file cannot be created.
+/// or a stop reads back.
+///
+/// The run owns the directory of `path`: it takes an [`OutputLock`] there first (another run
+/// holding it is a [`RecordError::Locked`] naming its process id, before anything is written)
+/// and hands it back in [`RecordedRun::lock`]. The file is written as `path.partial` and renamed
+/// to `path` when the run ended without an error (end time, the scene's stop, the observer's
+/// stop); a failed run's file is kept as `run.failed.mcap` ([`Recorder::finish_failed`]), so a
+/// good earlier recording at `path` survives. Fails only when the directory is locked or the
+/// file cannot be created.
 pub fn run_recorded<const D: usize, S: Scene<D>>(
     cfg: &SceneConfig<S>,
     path: &Path,
@@ -742,6 +1053,11 @@ pub fn run_recorded<const D: usize, S: Scene<D>>(
     mut observer: impl FnMut(&FlowReport, &Simulation<D, S::Boundary>) -> Observed,
 ) -> Result<RecordedRun<D, S>, RecordError> {
     let capture = options.level == RecordLevel::Full;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let lock = OutputLock::acquire(dir)?;
     let mut rec = Recorder::create_with(path, options, header)?;
     let run = run_scene(
         cfg,
@@ -754,8 +1070,12 @@ pub fn run_recorded<const D: usize, S: Scene<D>>(
             observer(rep, sim)
         },
     );
-    let record = rec.finish();
-    Ok(RecordedRun { run, record })
+    let record = if run.is_ok() {
+        rec.finish()
+    } else {
+        rec.finish_failed()
+    };
+    Ok(RecordedRun { run, record, lock })
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -9,6 +9,9 @@ decoded from base64 and their sizes checked. Then the file is cut in the middle 
 read again with the streaming reader, which must recover a prefix of the steps.
 
 Usage: read_mcap.py FILE [FILE ...]      exits non-zero on the first failure.
+       read_mcap.py --stream FILE MIN_STEPS  a file without footer (a killed run's
+                                            run.mcap.partial): the streaming reader must read
+                                            steps 1..k with k >= MIN_STEPS.
 """
 
 import base64
@@ -129,7 +132,26 @@ def check_file(path):
           + ("" if jsonschema else " (jsonschema not installed: schemas not checked)"))
 
 
+def check_stream(path, min_steps):
+    steps = []
+    channels = {}
+    try:
+        for record in StreamReader(open(path, "rb"), skip_magic=False).records:
+            if isinstance(record, Channel):
+                channels[record.id] = record.topic
+            elif isinstance(record, Message) and channels.get(record.channel_id) == "/diagnostics":
+                steps.append(json.loads(record.data)["step"])
+    except Exception as e:  # the reader stops where the file ends
+        print(f"  streaming reader stopped with {type(e).__name__}")
+    check(steps == list(range(1, len(steps) + 1)), f"{path}: steps are not 1..N")
+    check(len(steps) >= min_steps, f"{path}: {len(steps)} steps, expected at least {min_steps}")
+    print(f"ok {path}: streaming reader read steps 1..{len(steps)}")
+
+
 def main():
+    if len(sys.argv) == 4 and sys.argv[1] == "--stream":
+        check_stream(sys.argv[2], int(sys.argv[3]))
+        return
     if len(sys.argv) < 2:
         print(__doc__)
         sys.exit(2)
