@@ -94,6 +94,17 @@ impl<const D: usize> Particles<D> {
         self.role.iter().filter(|r| r.is_fluid()).count()
     }
 
+    /// Largest speed `max |u_i|` over the fluid particles (0 without any).
+    pub fn max_fluid_speed(&self) -> f64 {
+        self.u
+            .iter()
+            .zip(&self.role)
+            .filter(|(_, r)| r.is_fluid())
+            .map(|(u, _)| u.iter().map(|v| v * v).sum::<f64>())
+            .fold(0.0f64, f64::max)
+            .sqrt()
+    }
+
     /// Checks that the arrays agree in length, that positions, velocities, pressures and volumes
     /// are finite, that volumes are positive and that every ghost mirrors a fluid particle.
     /// The error names the first offending particle.

@@ -268,13 +268,7 @@ pub fn time_step<const D: usize>(
     l: &TimeStepLimits,
 ) -> (f64, DtLimit) {
     let h = nl.h();
-    let umax =
-        p.u.iter()
-            .zip(&p.role)
-            .filter(|(_, r)| r.is_fluid())
-            .map(|(u, _)| norm2(u))
-            .fold(0.0f64, f64::max)
-            .sqrt();
+    let umax = p.max_fluid_speed();
     let mut dt = l.dt_max.unwrap_or(f64::INFINITY);
     let mut which = DtLimit::Max;
     let cfl = l.cfl * h / umax.max(l.u_ref);

@@ -129,13 +129,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     let n = p.len();
     let kernel = *nl.kernel();
     let h = nl.h();
-    let umax =
-        p.u.iter()
-            .zip(&p.role)
-            .filter(|(_, r)| r.is_fluid())
-            .map(|(u, _)| norm2(u))
-            .fold(0.0f64, f64::max)
-            .sqrt();
+    let umax = p.max_fluid_speed();
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
     // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
     s.shift.resize(n, [0.0; D]);
