@@ -77,8 +77,9 @@ struct Args {
     /// Averaging window for the profiles (time units).
     #[arg(long)]
     average: Option<f64>,
-    /// Continuation of the Poisson source into wall ghosts: mirror or no-slip.
-    #[arg(long, default_value = "mirror")]
+    /// Continuation of the Poisson source into wall ghosts: auto (mirror for the GPM
+    /// operators, no-slip for the consistent ones), mirror or no-slip.
+    #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Output directory.
     #[arg(long)]

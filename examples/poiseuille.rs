@@ -16,8 +16,13 @@
 //! over the fluid particles, `rms_rel_error`, `centre_speed_ratio`, `wall_seconds`, the monitor's
 //! ranges and the configuration), `profile.png` and `run.mcap`.
 //!
-//! `--study` runs jitter 0, 0.1, 0.3 × the three pressure schemes × plain and moment pair
-//! weights and writes `study.csv`.
+//! `--operators` picks the operator set: `auto` (default: the least-squares operators of
+//! `ProjectionParams::with_consistent_operators` on jittered particles, the GPM ones on the
+//! lattice), `gpm` or `consistent`.
+//!
+//! `--study` runs jitter 0, 0.1, 0.3 × the three pressure schemes × {GPM operators with plain
+//! pair weights, GPM operators with moment-consistent weights, least-squares operators} and
+//! writes `study.csv`.
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -60,6 +65,9 @@ struct Args {
     /// Pair weights: plain (GPM's w/r²) or moment (moment-consistent, `gpm::pair_weights`).
     #[arg(long, default_value = "plain")]
     weights: gpm::pair_weights::PairWeights,
+    /// Operator set: auto (consistent on jittered or moving particles), gpm or consistent.
+    #[arg(long, default_value = "auto")]
+    operators: gpm::scene::OperatorSet,
     /// Particle frame: eulerian (fixed particles) or lagrangian.
     #[arg(long, default_value = "eulerian")]
     motion: Motion,
@@ -97,6 +105,7 @@ fn config(a: &Args) -> Result<ChannelConfig> {
         c.scheme = a.scheme;
         c.motion = a.motion;
         c.pair_weights = a.weights;
+        c.operators = a.operators;
         c.scene.body_force = a.g;
         c.scene.jitter = a.jitter;
         c.scene.seed = a.seed;
@@ -116,16 +125,33 @@ fn study(a: &Args) -> Result<ExitCode> {
     let mut f = std::fs::File::create(&path)?;
     writeln!(
         f,
-        "jitter,weights,scheme,n,max_rel_error,rms_rel_error,centre_speed_ratio,c0_min,c0_max,max_stability_ratio,max_correction_ratio,steps,wall_seconds,error"
+        "jitter,operators,weights,scheme,n,max_rel_error,rms_rel_error,centre_speed_ratio,c0_min,c0_max,max_stability_ratio,max_correction_ratio,steps,wall_seconds,error"
     )?;
     println!(
-        "{:>6} {:>7} {:>16} {:>12} {:>12} {:>8} {:>8} {:>8} {:>8}",
-        "jitter", "weights", "scheme", "max err/umax", "rms err", "centre", "c0 max", "ratio", "s"
+        "{:>6} {:>10} {:>7} {:>16} {:>12} {:>12} {:>8} {:>8} {:>8} {:>8}",
+        "jitter",
+        "operators",
+        "weights",
+        "scheme",
+        "max err/umax",
+        "rms err",
+        "centre",
+        "c0 max",
+        "ratio",
+        "s"
     );
     use gpm::pair_weights::PairWeights;
-    for (jitter, weights) in [0.0, 0.1, 0.3]
+    use gpm::scene::OperatorSet;
+    // the GPM operators with the plain and the moment-consistent pair weights, and the
+    // least-squares operators (what `auto` picks on disordered particles)
+    let sets = [
+        (OperatorSet::Gpm, PairWeights::Plain),
+        (OperatorSet::Gpm, PairWeights::Moment),
+        (OperatorSet::Consistent, PairWeights::Plain),
+    ];
+    for (jitter, (ops, weights)) in [0.0, 0.1, 0.3]
         .into_iter()
-        .flat_map(|j| [(j, PairWeights::Plain), (j, PairWeights::Moment)])
+        .flat_map(|j| sets.map(|s| (j, s)))
     {
         for scheme in [
             Scheme::NonIncremental,
@@ -136,13 +162,16 @@ fn study(a: &Args) -> Result<ExitCode> {
             cfg.scene.jitter = jitter;
             cfg.scheme = scheme;
             cfg.pair_weights = weights;
+            cfg.operators = ops;
             let w = format!("{weights:?}").to_lowercase();
+            let o = format!("{ops:?}").to_lowercase();
             match run(&cfg) {
                 Ok(r) => {
                     let e = r.errors;
                     println!(
-                        "{:>6} {:>7} {:>16} {:>12.3e} {:>12.3e} {:>8.4} {:>8.4} {:>8.3} {:>8.2}",
+                        "{:>6} {:>10} {:>7} {:>16} {:>12.3e} {:>12.3e} {:>8.4} {:>8.4} {:>8.3} {:>8.2}",
                         jitter,
+                        o,
                         w,
                         scheme.to_string(),
                         e.max_rel_error,
@@ -154,7 +183,7 @@ fn study(a: &Args) -> Result<ExitCode> {
                     );
                     writeln!(
                         f,
-                        "{jitter},{w},{scheme},{},{},{},{},{},{},{},{},{},{},",
+                        "{jitter},{o},{w},{scheme},{},{},{},{},{},{},{},{},{},{},",
                         cfg.n,
                         e.max_rel_error,
                         e.rms_rel_error,
@@ -170,10 +199,10 @@ fn study(a: &Args) -> Result<ExitCode> {
                 Err(err) => {
                     let msg = err.to_string().replace([',', '\n'], ";");
                     println!(
-                        "{jitter:>6} {w:>7} {:>16} failed: {msg}",
+                        "{jitter:>6} {o:>10} {w:>7} {:>16} failed: {msg}",
                         scheme.to_string()
                     );
-                    writeln!(f, "{jitter},{w},{scheme},{},,,,,,,,,,{msg}", cfg.n)?;
+                    writeln!(f, "{jitter},{o},{w},{scheme},{},,,,,,,,,,{msg}", cfg.n)?;
                 }
             }
         }
@@ -232,11 +261,12 @@ fn single(a: &Args) -> Result<ExitCode> {
     let res = &run.result;
     let e = res.errors;
     println!(
-        "channel n {} jitter {} ({}, {}, {:?} weights) t = {:.2} ({} steps, {:.2} s): max |u − u_exact|/u_max {:.3e}, RMS {:.3e}, centre speed {:.4} of exact",
+        "channel n {} jitter {} ({}, {}, {:?} operators, {:?} weights) t = {:.2} ({} steps, {:.2} s): max |u − u_exact|/u_max {:.3e}, RMS {:.3e}, centre speed {:.4} of exact",
         res.n,
         res.jitter,
         cfg.scheme,
         format!("{:?}", cfg.motion).to_lowercase(),
+        cfg.operators,
         cfg.pair_weights,
         res.t_end,
         res.steps,

@@ -48,12 +48,14 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
-    /// The displacement that brings a point `x` that is inside the domain to at least `margin`
-    /// inside every wall (zero when it already is, when it has crossed a wall — a step too
-    /// large, which [`confine`](Self::confine) reports — and for boundaries without walls). Moving particles use it as
-    /// the wall part of their shift: a particle the flow carries closer than `margin` to a wall
-    /// is moved back along the wall normal, and its velocity and pressure are re-interpolated to
-    /// the new position like any shifted particle's.
+    /// The displacement that brings a point `x` to at least `margin` inside every wall: for a
+    /// point closer than `margin` to a wall, or beyond it by less than `margin` (zero when it
+    /// already is inside the margin, when it is beyond a wall by `margin` or more — a step too
+    /// large, which [`confine`](Self::confine) reports — and for boundaries without walls).
+    /// Moving particles use it as the wall part of their shift, before the projection of the
+    /// step (which therefore acts on the corrected positions): a particle the flow carries
+    /// closer than `margin` to a wall is moved back along the wall normal, and its velocity and
+    /// pressure are re-interpolated to the new position like any shifted particle's.
     fn wall_margin_push(&self, x: &[f64; D], margin: f64) -> [f64; D] {
         let _ = (x, margin);
         [0.0; D]
@@ -411,8 +413,8 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         let mut d = [0.0; D];
         for w in &self.walls {
             let s = w.distance(x);
-            // a point on or beyond the wall has crossed it: not moved (confine reports it)
-            if s > 0.0 && s < margin {
+            // a point beyond the wall by `margin` or more: not moved (confine reports it)
+            if s > -margin && s < margin {
                 d[w.axis] += (margin - s) * w.inward;
             }
         }

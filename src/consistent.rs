@@ -338,6 +338,9 @@ pub enum GradientKind {
     /// The renormalised gradient `∇ᶜ = B ∇h` (first order on any distribution; not adjoint to
     /// `∇̂h·`).
     Renormalised,
+    /// The least-squares gradient `∇ˡˢ` of [`LsOperators`] (exact on quadratics, second order
+    /// on any distribution; not adjoint to `∇̂h·`).
+    LeastSquares,
 }
 
 impl std::str::FromStr for GradientKind {
@@ -346,8 +349,9 @@ impl std::str::FromStr for GradientKind {
         match s.trim().to_ascii_lowercase().as_str() {
             "difference" | "diff" => Ok(GradientKind::Difference),
             "renormalised" | "renormalized" | "corrected" => Ok(GradientKind::Renormalised),
+            "least-squares" | "least_squares" | "ls" => Ok(GradientKind::LeastSquares),
             _ => Err(format!(
-                "unknown gradient '{s}': expected difference or renormalised"
+                "unknown gradient '{s}': expected difference, renormalised or least-squares"
             )),
         }
     }
@@ -358,6 +362,7 @@ impl std::fmt::Display for GradientKind {
         f.write_str(match self {
             GradientKind::Difference => "difference",
             GradientKind::Renormalised => "renormalised",
+            GradientKind::LeastSquares => "least-squares",
         })
     }
 }
@@ -386,12 +391,24 @@ impl std::fmt::Display for GradientKind {
 /// assert!(out.iter().all(|v| (v[0] - 2.0).abs() < 1e-9 && (v[1] + 1.0).abs() < 1e-9));
 /// # Ok::<(), gpm::error::InputError>(())
 /// ```
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct GradientOperator<const D: usize> {
     /// The gradient.
     pub kind: GradientKind,
-    /// Cached renormalisation matrices ([`GradientKind::Renormalised`] only).
+    /// Cached renormalisation matrices (the renormalised gradient and divergences).
     pub renorm: Renormalisation<D>,
+    /// Cached least-squares coefficients with ghosts as fit points (gradients of scalars with
+    /// the Neumann extension: pressures, pressure increments).
+    pub ls: LsOperators<D>,
+    /// Cached least-squares coefficients with wall points for ghosts (velocities: the
+    /// divergence, the viscous Laplacian).
+    pub ls_walls: LsOperators<D>,
+}
+
+impl<const D: usize> Default for GradientOperator<D> {
+    fn default() -> Self {
+        Self::new(GradientKind::default())
+    }
 }
 
 impl<const D: usize> GradientOperator<D> {
@@ -400,6 +417,8 @@ impl<const D: usize> GradientOperator<D> {
         GradientOperator {
             kind,
             renorm: Renormalisation::new(),
+            ls: LsOperators::new(),
+            ls_walls: LsOperators::at_walls(),
         }
     }
 
@@ -409,6 +428,7 @@ impl<const D: usize> GradientOperator<D> {
         match self.kind {
             GradientKind::Difference => false,
             GradientKind::Renormalised => self.renorm.update(nl, vol, nl.len()),
+            GradientKind::LeastSquares => self.ls.update(nl, vol, nl.len(), None),
         }
     }
 
@@ -417,6 +437,7 @@ impl<const D: usize> GradientOperator<D> {
         match self.kind {
             GradientKind::Difference => crate::operators::grad_diff_into(nl, vol, phi, out),
             GradientKind::Renormalised => grad_renormalised_into(nl, vol, &self.renorm, phi, out),
+            GradientKind::LeastSquares => self.ls.grad_into(nl, phi, out),
         }
     }
 }
@@ -659,4 +680,364 @@ pub fn sph_laplacian_brookshaw<const D: usize>(
             -2.0 * s
         })
         .collect()
+}
+
+// ---------------------------------------------------------------------------------------------
+// the least-squares Laplacian as pair coefficients (viscous term on disordered particles)
+// ---------------------------------------------------------------------------------------------
+
+/// Which Laplacian the predictor's viscous term uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LaplacianKind {
+    /// The GPM Laplacian `Δh` (symmetric; exact on quadratics only where the neighbourhood is
+    /// symmetric, an `O(1/h)` error on disordered particles).
+    #[default]
+    Gpm,
+    /// The weighted least-squares Laplacian `Δˡˢ` of [`LsLaplacian`] (exact on quadratics on
+    /// any distribution; not symmetric). With an implicit viscous weight `θ` the predictor
+    /// treats `θΔh` implicitly and `Δˡˢ − θΔh` explicitly, so a steady state satisfies the
+    /// consistent `νΔˡˢu + … = 0`.
+    LeastSquares,
+}
+
+impl std::str::FromStr for LaplacianKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "gpm" | "pair" => Ok(LaplacianKind::Gpm),
+            "least_squares" | "ls" => Ok(LaplacianKind::LeastSquares),
+            _ => Err(format!(
+                "unknown Laplacian '{s}': expected gpm or least-squares"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for LaplacianKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            LaplacianKind::Gpm => "gpm",
+            LaplacianKind::LeastSquares => "least-squares",
+        })
+    }
+}
+
+/// The weighted least-squares gradient and Laplacian of [`ls_gradient_laplacian`] written as
+/// pair coefficients: `∇ˡˢφ_i = Σ_j g_ij (φ_j − φ_i)` and `Δˡˢφ_i = Σ_j c_ij (φ_j − φ_i)`. With the
+/// quadratic basis `p(x̂)` of `x̂ = x_ji/h` and the normal matrix `A_i = Σ_j ω_j w_h p pᵀ`,
+/// `(g_ij, c_ij) = ω_j w_h(r_ij) (E A_i⁻¹ p(x̂_ji))` (`E` picks the first derivatives, scaled by
+/// `1/h`, and the trace of the Hessian, scaled by `1/h²`). Both are exact for quadratic `φ` on
+/// any distribution whose normal matrices are regular (gradient error `O(h²)`, Laplacian
+/// `O(h)`); the divergence `∇ˡˢ·ψ_i = Σ_a (∇ˡˢψ_a)_a` is exact for quadratic `ψ`. Computed once
+/// per configuration (cached on the list's epoch and generation and the volumes) and then
+/// applied as sparse products. Rows with a singular normal matrix fall back to the GPM
+/// coefficients (`d ω_j w_h x_ji/r²` and `2d ω_j w_h/r²`) and are listed in
+/// [`Self::fallback_rows`].
+///
+/// **Walls** ([`Self::at_walls`]): a fit through mirror ghosts sees the ghosts' values, which for
+/// a velocity under the no-slip rule `u_g = 2u_w − u_s` are the odd extension of `u` across the
+/// wall: its second derivative jumps there, and a quadratic fit across the jump has an `O(1)`
+/// error in the near-wall rows. The wall variant replaces each ghost `g` (image of the fluid
+/// particle `s`) by the point on the wall half-way between them, `(x_g + x_s)/2`, carrying
+/// `(u_g + u_s)/2` — the wall velocity under the no-slip rule — so that the fit is one-sided
+/// and exact for quadratic fields that take the wall value. The plain variant keeps the ghost
+/// points (exact for quadratic scalars with a zero normal derivative, the Neumann extension of
+/// pressures).
+#[derive(Clone, Debug, Default)]
+pub struct LsOperators<const D: usize> {
+    /// Per pair: `D` gradient coefficients, then the Laplacian coefficient.
+    coef: Vec<f64>,
+    /// Wall variant: per pair, the particle whose value is averaged with the neighbour's
+    /// (the ghost's source, or the neighbour itself).
+    partner: Vec<u32>,
+    walls: bool,
+    /// Rows that got the GPM coefficients.
+    pub fallback_rows: Vec<usize>,
+    key: Option<RenormKey>,
+}
+
+impl<const D: usize> LsOperators<D> {
+    const S: usize = D + 1;
+
+    /// Empty (no rows), the plain variant (ghosts are fit points).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Empty (no rows), the wall variant (a ghost stands for the wall point between it and
+    /// its source; see the type's docs).
+    pub fn at_walls() -> Self {
+        LsOperators {
+            walls: true,
+            ..Self::default()
+        }
+    }
+
+    /// Recomputes the coefficients of rows `0..rows` unless the list and volumes are those of
+    /// the last computation; returns true when it recomputed. `geometry` (positions and roles)
+    /// is read by the wall variant only (which treats every pair as a plain one without it).
+    pub fn update(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        rows: usize,
+        geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
+    ) -> bool {
+        assert!(rows <= nl.len(), "rows beyond the neighbour list");
+        let key = RenormKey {
+            epoch: nl.epoch(),
+            generation: nl.generation(),
+            rows,
+            vol: vol.to_vec(),
+        };
+        if self.key.as_ref() == Some(&key) {
+            return false;
+        }
+        let m = n_quadratic(D);
+        let hinv = 1.0 / nl.h();
+        let hinv2 = hinv * hinv;
+        let d = D as f64;
+        let end = if rows == 0 { 0 } else { nl.row(rows - 1).end };
+        self.coef.clear();
+        self.coef.resize(end * Self::S, 0.0);
+        // the wall variant's fit points: a ghost g of source s stands for (x_g + x_s)/2
+        self.partner.clear();
+        let mut shift = Vec::new();
+        if let (true, Some((x, role))) = (self.walls, geometry) {
+            self.partner.reserve(end);
+            shift.reserve(end);
+            for k in 0..end {
+                let j = nl.indices()[k] as usize;
+                match role[j] {
+                    crate::particles::Role::Ghost { source, .. } => {
+                        let s = source as usize;
+                        self.partner.push(source);
+                        shift.push(std::array::from_fn::<f64, D, _>(|c| {
+                            0.5 * (x[j][c] - x[s][c])
+                        }));
+                    }
+                    _ => {
+                        self.partner.push(j as u32);
+                        shift.push([0.0; D]);
+                    }
+                }
+            }
+        }
+        let kernel = *nl.kernel();
+        let shift = &shift;
+        // relative position and weight of the fit point of pair k
+        let point = |k: usize, j: usize| -> ([f64; D], f64) {
+            if shift.is_empty() {
+                (nl.dx()[k], vol[j] * nl.w()[k])
+            } else {
+                let d: [f64; D] = std::array::from_fn(|c| nl.dx()[k][c] - shift[k][c]);
+                let r = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+                (d, vol[j] * kernel.w_h(r))
+            }
+        };
+        // rows own disjoint, consecutive pair ranges: split the coefficient array by row
+        let mut slices: Vec<(usize, &mut [f64])> = Vec::with_capacity(rows);
+        let mut rest: &mut [f64] = &mut self.coef;
+        let mut at = 0;
+        for i in 0..rows {
+            let r = nl.row(i);
+            let (_, tail) = rest.split_at_mut((r.start - at) * Self::S);
+            let (mine, tail) = tail.split_at_mut(r.len() * Self::S);
+            slices.push((i, mine));
+            rest = tail;
+            at = r.end;
+        }
+        let fallback: Vec<usize> = slices
+            .into_par_iter()
+            .with_min_len(64)
+            .map_init(
+                || (DMatrix::<f64>::zeros(m, m), DVector::<f64>::zeros(m)),
+                |(a, p), (i, out)| {
+                    a.fill(0.0);
+                    for k in nl.row(i) {
+                        let (dk, wk) = point(k, nl.indices()[k] as usize);
+                        let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                        quadratic_basis(&z, p);
+                        a.ger(wk, p, p, 1.0);
+                    }
+                    let start = nl.row(i).start;
+                    let inv = a
+                        .clone()
+                        .try_inverse()
+                        .filter(|inv| inv.iter().all(|v| v.is_finite()));
+                    // a well-posed fit: the normal matrix is regular and not too ill-conditioned
+                    let ok = inv.as_ref().is_some_and(|inv| {
+                        let na = a.iter().map(|v| v.abs()).fold(0.0, f64::max);
+                        let ni = inv.iter().map(|v| v.abs()).fold(0.0, f64::max);
+                        na * ni < 1e5
+                    });
+                    match inv {
+                        Some(inv) if ok => {
+                            for k in nl.row(i) {
+                                let (dk, wk) = point(k, nl.indices()[k] as usize);
+                                let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                                quadratic_basis(&z, p);
+                                let y = &inv * &*p;
+                                let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                                for c in 0..D {
+                                    o[c] = wk * y[c] * hinv;
+                                }
+                                o[D] = wk * (0..D).map(|c| y[D + c]).sum::<f64>() * hinv2;
+                            }
+                            None
+                        }
+                        _ => {
+                            for k in nl.row(i) {
+                                let j = nl.indices()[k] as usize;
+                                let f = vol[j] * nl.wr2()[k];
+                                let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                                for c in 0..D {
+                                    o[c] = d * f * nl.dx()[k][c];
+                                }
+                                o[D] = 2.0 * d * f;
+                            }
+                            Some(i)
+                        }
+                    }
+                },
+            )
+            .flatten()
+            .collect();
+        self.fallback_rows = fallback;
+        self.key = Some(key);
+        true
+    }
+
+    /// Rows the coefficients cover.
+    pub fn rows(&self) -> usize {
+        self.key.as_ref().map_or(0, |k| k.rows)
+    }
+
+    fn check(&self, rows: usize) {
+        assert!(
+            rows <= self.rows(),
+            "least-squares coefficients computed for fewer rows"
+        );
+    }
+
+    /// The value pair `k` (neighbour `j`) fits: `f_j`, or `(f_g + f_s)/2` for a ghost of the
+    /// wall variant.
+    #[inline]
+    fn scalar(&self, k: usize, j: usize, f: &[f64]) -> f64 {
+        match self.partner.get(k) {
+            Some(&s) if s as usize != j => 0.5 * (f[j] + f[s as usize]),
+            _ => f[j],
+        }
+    }
+
+    /// [`Self::scalar`] for a vector field.
+    #[inline]
+    fn vector(&self, k: usize, j: usize, f: &[[f64; D]]) -> [f64; D] {
+        match self.partner.get(k) {
+            Some(&s) if s as usize != j => {
+                std::array::from_fn(|a| 0.5 * (f[j][a] + f[s as usize][a]))
+            }
+            _ => f[j],
+        }
+    }
+
+    /// `Δˡˢu` componentwise into `out` (rows `0..out.len()`, at most [`Self::rows`]).
+    pub fn laplacian_vec_into(&self, nl: &NeighborList<D>, u: &[[f64; D]], out: &mut [[f64; D]]) {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, o)| {
+                let ui = u[i];
+                let mut s = [0.0; D];
+                for k in nl.row(i) {
+                    let uj = self.vector(k, nl.indices()[k] as usize, u);
+                    let c = self.coef[k * Self::S + D];
+                    for a in 0..D {
+                        s[a] += c * (uj[a] - ui[a]);
+                    }
+                }
+                *o = s;
+            });
+    }
+
+    /// `Δˡˢφ` into `out` (rows `0..out.len()`, at most [`Self::rows`]).
+    pub fn laplacian_into(&self, nl: &NeighborList<D>, phi: &[f64], out: &mut [f64]) {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, o)| {
+                let fi = phi[i];
+                *o = nl
+                    .row(i)
+                    .map(|k| {
+                        self.coef[k * Self::S + D]
+                            * (self.scalar(k, nl.indices()[k] as usize, phi) - fi)
+                    })
+                    .sum();
+            });
+    }
+
+    /// `∇ˡˢφ` into `out` (rows `0..out.len()`, at most [`Self::rows`]).
+    pub fn grad_into(&self, nl: &NeighborList<D>, phi: &[f64], out: &mut [[f64; D]]) {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, o)| {
+                let fi = phi[i];
+                let mut s = [0.0; D];
+                for k in nl.row(i) {
+                    let df = self.scalar(k, nl.indices()[k] as usize, phi) - fi;
+                    for a in 0..D {
+                        s[a] += self.coef[k * Self::S + a] * df;
+                    }
+                }
+                *o = s;
+            });
+    }
+
+    /// The gradient of each component of `u`, `out_i[a][b] = (∇ˡˢu_a)_b` (rows `0..out.len()`,
+    /// at most [`Self::rows`]).
+    pub fn grad_vec_into(&self, nl: &NeighborList<D>, u: &[[f64; D]], out: &mut [[[f64; D]; D]]) {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, o)| {
+                let ui = u[i];
+                let mut g = [[0.0; D]; D];
+                for k in nl.row(i) {
+                    let uj = self.vector(k, nl.indices()[k] as usize, u);
+                    for a in 0..D {
+                        let du = uj[a] - ui[a];
+                        for b in 0..D {
+                            g[a][b] += self.coef[k * Self::S + b] * du;
+                        }
+                    }
+                }
+                *o = g;
+            });
+    }
+
+    /// `∇ˡˢ·ψ_i = Σ_a (∇ˡˢψ_a)_a` into `out` (rows `0..out.len()`, at most [`Self::rows`]).
+    pub fn div_into(&self, nl: &NeighborList<D>, psi: &[[f64; D]], out: &mut [f64]) {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, o)| {
+                let pi = psi[i];
+                let mut s = 0.0;
+                for k in nl.row(i) {
+                    let pj = self.vector(k, nl.indices()[k] as usize, psi);
+                    for a in 0..D {
+                        s += self.coef[k * Self::S + a] * (pj[a] - pi[a]);
+                    }
+                }
+                *o = s;
+            });
+    }
 }

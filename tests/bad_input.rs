@@ -1250,5 +1250,6 @@ fn examples_report_bad_input_cleanly() {
     assert_clean_failure(&o, &["cavity run failed", "particle", "outside the domain"]);
     let r = Replay::open(Path::new(out).join("run.failed.mcap")).unwrap();
     assert!(r.scan.complete);
-    assert!(r.steps.len() <= 3);
+    // a step moves the particles with uⁿ: the first (the lid at rest) does not move them
+    assert!(r.steps.len() <= 4, "{} steps recorded", r.steps.len());
 }

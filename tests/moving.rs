@@ -5,9 +5,12 @@
 use gpm::boundary::{Boundary, VectorKind, Walls};
 use gpm::flow::{Motion, WALL_MARGIN};
 use gpm::particles::{Particles, Role};
+use gpm::projection::Scheme;
 use gpm::scene::cavity::CavityConfig;
 use gpm::scene::channel::{self, ChannelConfig};
 use gpm::scene::run_scene;
+use gpm::scene::taylor_green::{self, TaylorGreenConfig};
+use gpm::scene::OperatorSet;
 use std::ops::ControlFlow;
 
 /// No-slip mirror ghosts of the moving lid carry `2 u_w − u_i`, those of a resting wall `−u_i`,
@@ -97,8 +100,8 @@ fn lagrangian_cavity_particles_stay_inside_the_margin_and_c0_moves() {
     )
     .expect("a short Lagrangian cavity run");
     assert!(run.sim.steps >= 10);
-    // the lattice's c0 is 1 (number-density volumes); moving particles change it
-    assert!((c0[0] - 1.0).abs() < 1e-9, "{}", c0[0]);
+    // the lattice's c0 is 1 (number-density volumes); the projection of step 1 already sees
+    // the particles moved once, and c0 keeps changing
     let spread =
         c0.iter().cloned().fold(f64::MIN, f64::max) - c0.iter().cloned().fold(f64::MAX, f64::min);
     assert!(spread > 1e-3, "c0 stayed at {c0:?}");
@@ -175,4 +178,62 @@ fn channel_jitter_is_seen_by_the_monitor_and_bounded() {
         .expect("jitter 0.5 rejected")
         .to_string();
     assert!(err.contains("jitter"), "{err}");
+}
+
+/// With the least-squares operators (what `auto` picks on jittered particles) the steady
+/// Poiseuille profile is a fixed point of every scheme on any distribution (they are exact on
+/// quadratic velocities and constant pressures, the wall variant carrying the no-slip value), so
+/// after the start-up transient (amplitude `e^{−π²νt/H²}` ≈ 3e-9 at t = 20) the error is the
+/// transient's, even at the largest jitter the scene allows. The GPM operators are 25–100 %
+/// off at 0.1 Δx already (issue 13).
+#[test]
+fn consistent_operators_hold_poiseuille_on_jittered_particles_for_every_scheme() {
+    for jitter in [0.1, 0.45] {
+        for scheme in [
+            Scheme::NonIncremental,
+            Scheme::Incremental,
+            Scheme::Rotational,
+        ] {
+            let cfg = ChannelConfig::default().with(|c| {
+                c.n = 16;
+                c.t_end = 20.0;
+                c.scheme = scheme;
+                c.scene.jitter = jitter;
+            });
+            let res = channel::run(&cfg).unwrap();
+            assert!(
+                res.errors.max_rel_error < 1e-6,
+                "jitter {jitter} {scheme}: max error / u_max {}",
+                res.errors.max_rel_error
+            );
+        }
+    }
+    // the GPM operators on the same particles stall or distort the flow
+    let cfg = ChannelConfig::default().with(|c| {
+        c.n = 16;
+        c.t_end = 20.0;
+        c.scheme = Scheme::Incremental;
+        c.scene.jitter = 0.1;
+        c.operators = OperatorSet::Gpm;
+    });
+    let res = channel::run(&cfg).unwrap();
+    assert!(res.errors.max_rel_error > 0.05, "{:?}", res.errors);
+}
+
+/// The Lagrangian step projects on the moved configuration: after one step of a Taylor–Green
+/// vortex the pressure still balances the material acceleration (projecting before the move
+/// made `∇·u*` = −Δt ∇²pⁿ the projection's source, which cancelled `pⁿ`: an L1 pressure
+/// error of 98 % after one step).
+#[test]
+fn lagrangian_step_keeps_the_pressure_of_a_taylor_green_vortex() {
+    let cfg = TaylorGreenConfig::default().with(|c| {
+        c.n = 32;
+        c.motion = Motion::Lagrangian;
+    });
+    let mut sim = taylor_green::build(&cfg).unwrap();
+    let report = sim.advance().unwrap();
+    assert!(report.projection.dt > 0.0);
+    let e = taylor_green::errors(&sim, cfg.re, cfg.scene.amplitude);
+    assert!(e.l1_pressure_error < 0.1, "{e:?}");
+    assert!(e.l1_velocity_error < 0.01, "{e:?}");
 }

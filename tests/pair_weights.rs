@@ -388,3 +388,47 @@ fn infeasible_rows_are_a_typed_error() {
         other => panic!("expected a pair-weight error, got {:?}", other.map(|_| ())),
     }
 }
+
+/// Tracking mode: a single Newton step cannot meet 1e-10 from a cold start, so without `accept`
+/// the call fails; with `accept` above the residual it returns factors that are still symmetric
+/// (adjointness exact) and reports the residual it stopped at.
+#[test]
+fn accept_returns_the_unconverged_but_symmetric_factors() {
+    let box_ = periodic();
+    let strict = MomentParams {
+        max_newton: 1,
+        ..Default::default()
+    };
+    let mut p = particles(0.1, 11, false);
+    let mut state = MomentWeights::new(strict);
+    let Err(err) = prepare_with(
+        &mut p,
+        &box_,
+        config(),
+        VolumeRule::NumberDensity,
+        PairWeights::Moment,
+        &mut state,
+    ) else {
+        panic!("one Newton step does not reach 1e-10")
+    };
+    assert!(err.to_string().contains("Newton"), "{err}");
+    let tracking = MomentParams {
+        max_newton: 1,
+        accept: 1.0,
+        ..Default::default()
+    };
+    let (plain, nl, _q, state) = setup(0.1, &box_, false, tracking);
+    let r = state.last_report().unwrap();
+    assert_eq!(r.newton, 1);
+    assert!(r.first_moment > 1e-10 && r.first_moment < 1.0, "{r:?}");
+    // symmetric to 1e-12 (asserted inside), positive and finite
+    let (lo, hi) = check_symmetric(&plain, &nl);
+    assert!(lo > 0.0 && hi.is_finite(), "factors in [{lo}, {hi}]");
+    // a negative acceptance is a parameter error naming the key
+    let bad = MomentParams {
+        accept: -1.0,
+        ..Default::default()
+    };
+    let e = bad.validate().unwrap_err().to_string();
+    assert!(e.contains("accept"), "{e}");
+}

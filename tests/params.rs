@@ -337,3 +337,19 @@ fn under_prefixes_only_parameter_errors() {
     assert_eq!(other.clone().under("projection"), other);
     assert_eq!(other.parameter_name(), None);
 }
+
+#[test]
+fn pressure_smoothing_outside_zero_one_is_named() {
+    let p = |beta: f64| {
+        let mut q = gpm::projection::ProjectionParams::<2>::new(0.01);
+        q.pressure_smoothing = beta;
+        q.validate()
+    };
+    assert!(p(0.0).is_ok() && p(0.5).is_ok());
+    assert_param(p(1.0), "pressure_smoothing", 1.0);
+    assert_param(p(-0.1), "pressure_smoothing", -0.1);
+    assert_param(p(f64::NAN), "pressure_smoothing", f64::NAN);
+    // the consistent set is valid as it stands
+    let c = gpm::projection::ProjectionParams::<2>::new(0.01).with_consistent_operators();
+    assert!(c.validate().is_ok());
+}

@@ -4,7 +4,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use gpm::boundary::{Boundary, NoBoundary, PeriodicBox, Walls};
-use gpm::consistent::{grad_renormalised, GradientKind, Renormalisation};
+use gpm::consistent::{grad_renormalised, GradientKind, GradientOperator};
 use gpm::diagnostics::{norm_l2, Region};
 use gpm::error::{Error, InputError, SolveError};
 use gpm::geometry::{jitter, lattice, number_density_volumes};
@@ -648,21 +648,23 @@ fn the_consistent_divergence_is_exact_for_linear_fields() {
             ]
         })
         .collect();
-    let mut renorm = Renormalisation::new();
+    let mut ops = GradientOperator::new(GradientKind::Renormalised);
     let (mut work, mut out) = (Vec::new(), Vec::new());
     stages::divergence_into(
         &nl,
         &vol,
+        &x,
         &role,
         &NoBoundary,
         gpm::boundary::VectorKind::Mirror,
         SourceKind::Renormalised,
-        &mut renorm,
+        &mut ops,
         &v,
         &mut work,
         &mut out,
     );
-    let fallback: std::collections::HashSet<usize> = renorm.fallback_rows.iter().copied().collect();
+    let fallback: std::collections::HashSet<usize> =
+        ops.renorm.fallback_rows.iter().copied().collect();
     let mut checked = 0;
     for i in 0..x.len() {
         if !fallback.contains(&i) {
@@ -676,11 +678,12 @@ fn the_consistent_divergence_is_exact_for_linear_fields() {
     stages::divergence_into(
         &nl,
         &vol,
+        &x,
         &role,
         &NoBoundary,
         gpm::boundary::VectorKind::Mirror,
         SourceKind::SumForm,
-        &mut renorm,
+        &mut ops,
         &v,
         &mut work,
         &mut sum,
@@ -697,21 +700,22 @@ fn the_adjoint_source_is_adjoint_to_the_renormalised_gradient() {
         .map(|p| [(3.0 * p[0]).sin() + p[1], (2.0 * p[1]).cos() * p[0]])
         .collect();
     let phi: Vec<f64> = x.iter().map(|p| (p[0] * p[1] * 5.0).sin()).collect();
-    let mut renorm = Renormalisation::new();
+    let mut ops = GradientOperator::new(GradientKind::Renormalised);
     let (mut work, mut div) = (Vec::new(), Vec::new());
     stages::divergence_into(
         &nl,
         &vol,
+        &x,
         &role,
         &NoBoundary,
         gpm::boundary::VectorKind::Mirror,
         SourceKind::AdjointBt,
-        &mut renorm,
+        &mut ops,
         &psi,
         &mut work,
         &mut div,
     );
-    let g = grad_renormalised(&nl, &vol, &renorm, &phi);
+    let g = grad_renormalised(&nl, &vol, &ops.renorm, &phi);
     let lhs: f64 = (0..x.len()).map(|i| vol[i] * div[i] * phi[i]).sum();
     let rhs: f64 = -(0..x.len())
         .map(|i| vol[i] * (psi[i][0] * g[i][0] + psi[i][1] * g[i][1]))

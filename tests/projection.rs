@@ -310,7 +310,11 @@ fn renormalised_gradient_option_is_used_by_the_correction() {
         p.vol = number_density_volumes(&nl);
         let dt = 0.01;
         let mut out = Vec::new();
-        for kind in [GradientKind::Difference, GradientKind::Renormalised] {
+        for kind in [
+            GradientKind::Difference,
+            GradientKind::Renormalised,
+            GradientKind::LeastSquares,
+        ] {
             let mut q = p.clone();
             let mut params = ProjectionParams::<2>::new(0.0);
             params.scheme = Scheme::NonIncremental;
@@ -324,6 +328,13 @@ fn renormalised_gradient_option_is_used_by_the_correction() {
                 GradientKind::Renormalised => {
                     let b = Renormalisation::compute(&nl, &q.vol, nl.len());
                     grad_renormalised(&nl, &q.vol, &b, &cap.phi)
+                }
+                GradientKind::LeastSquares => {
+                    let mut ls = gpm::consistent::LsOperators::new();
+                    ls.update(&nl, &q.vol, nl.len(), None);
+                    let mut g = vec![[0.0; 2]; nl.len()];
+                    ls.grad_into(&nl, &cap.phi, &mut g);
+                    g
                 }
             };
             let scale = cap

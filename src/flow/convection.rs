@@ -1,11 +1,16 @@
 //! The convective term `−(u·∇h)u` of the Eulerian frame, integrated explicitly.
 //!
-//! `N = (u·∇h)u` with the difference gradient ([`grad_vec_into`]); forward Euler adds `−Nⁿ` to
+//! `N = (u·∇h)u` with the difference gradient ([`grad_vec_into`]) or, with the consistent
+//! operators, the least-squares gradient of the wall variant of
+//! [`crate::consistent::LsOperators`] (exact on quadratic velocities that take the wall value;
+//! the difference gradient is off by `O(1)` on disordered particles); forward Euler adds `−Nⁿ` to
 //! the predictor, second-order Adams–Bashforth with variable steps adds
 //! `−((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)`, `r = Δtⁿ/Δtⁿ⁻¹` (forward Euler on the first step).
 
+use crate::consistent::LsOperators;
 use crate::neighbors::NeighborList;
 use crate::operators::grad_vec_into;
+use crate::particles::Role;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -35,10 +40,17 @@ impl std::str::FromStr for Integrator {
 
 /// The convective term's state between steps: the previous `N` and its `Δt` (for AB2), and the
 /// velocity-gradient scratch.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct Convection<const D: usize> {
     prev: Option<(Vec<[f64; D]>, f64)>,
     grad: Vec<[[f64; D]; D]>,
+    ls: LsOperators<D>,
+}
+
+impl<const D: usize> Default for Convection<D> {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl<const D: usize> Convection<D> {
@@ -47,17 +59,21 @@ impl<const D: usize> Convection<D> {
         Convection {
             prev: None,
             grad: Vec::new(),
+            ls: LsOperators::at_walls(),
         }
     }
 
     /// Writes the convective acceleration `−N` (Euler) or `−((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)` (AB2)
     /// of velocities `u` (ghosts already filled) into `out`, and keeps `Nⁿ` and `dt` for the
     /// next step. AB2 falls back to Euler when there is no previous step or the particle count
-    /// changed.
+    /// changed. With `least_squares = Some((x, role))` the gradient is the least-squares one
+    /// (wall variant), otherwise the difference gradient.
+    #[allow(clippy::too_many_arguments)]
     pub fn accel_into(
         &mut self,
         nl: &NeighborList<D>,
         vol: &[f64],
+        least_squares: Option<(&[[f64; D]], &[Role])>,
         u: &[[f64; D]],
         integrator: Integrator,
         dt: f64,
@@ -65,7 +81,12 @@ impl<const D: usize> Convection<D> {
     ) {
         let n = u.len();
         self.grad.resize(n, [[0.0; D]; D]);
-        grad_vec_into(nl, vol, u, &mut self.grad);
+        if let Some(geometry) = least_squares {
+            self.ls.update(nl, vol, n, Some(geometry));
+            self.ls.grad_vec_into(nl, u, &mut self.grad);
+        } else {
+            grad_vec_into(nl, vol, u, &mut self.grad);
+        }
         let mut conv: Vec<[f64; D]> = vec![[0.0; D]; n];
         conv.par_iter_mut()
             .zip(self.grad.par_iter())

@@ -24,6 +24,7 @@ pub mod convection;
 pub mod shifting;
 
 use crate::boundary::{Boundary, VectorKind};
+use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
@@ -251,6 +252,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     work: Vec<[f64; D]>,
     shift_scratch: shifting::ShiftScratch<D>,
     stale: bool,
+    /// The advection velocity of a Lagrangian step (scratch).
+    advect_u: Vec<[f64; D]>,
     convection: Convection<D>,
     /// Kinetic energy after the last step (for `guard.energy_growth`).
     prev_energy: Option<f64>,
@@ -313,6 +316,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             work: Vec::new(),
             shift_scratch: Default::default(),
             stale: false,
+            advect_u: Vec::new(),
             convection: Convection::new(),
             prev_energy: None,
             pair_weights: Default::default(),
@@ -465,7 +469,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             rebuilt |= self.refresh()?;
             self.stale = false;
         }
-        let neighbors_seconds = t0.elapsed().as_secs_f64();
+        let mut neighbors_seconds = t0.elapsed().as_secs_f64();
         check_state(&self.particles, &self.nl)?;
         let (mut dt, mut dt_limit) = self.time_step();
         // the last step of advance_to(t): shortened (or stretched by a rounding sliver) to land
@@ -484,6 +488,40 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .guard
             .check_dt(self.steps + 1, dt, bound_limit, bound)?;
         let lagrangian = self.plan.has(Stage::Advection);
+        let mut advect_seconds = 0.0;
+        let mut moved = shifting::Moved::default();
+        if lagrangian {
+            // move with uⁿ (divergence-free and tangent to the walls after the last
+            // projection) plus the shift (uⁿ and pⁿ Taylor-corrected to the shifted positions),
+            // keep off the walls, and bring the neighbours and volumes to the moved
+            // configuration: predictor and projection then act where the particles are at
+            // tⁿ⁺¹, so uⁿ⁺¹ is divergence-free there (Cummins & Rudman 1999)
+            let t1 = Instant::now();
+            let sh = self
+                .params
+                .shifting
+                .filter(|_| self.plan.has(Stage::Shifting));
+            let mut u = std::mem::take(&mut self.advect_u);
+            u.clone_from(&self.particles.u);
+            let res = shifting::advance_particles(
+                sh.as_ref(),
+                self.params.dx,
+                dt,
+                WALL_MARGIN * self.params.dx,
+                &mut self.particles,
+                &mut u,
+                &self.nl,
+                &self.boundary,
+                &mut self.shift_scratch,
+            );
+            std::mem::swap(&mut self.particles.u, &mut u);
+            self.advect_u = u;
+            moved = res?;
+            advect_seconds += t1.elapsed().as_secs_f64();
+            let t2 = Instant::now();
+            rebuilt |= self.refresh()?;
+            neighbors_seconds += t2.elapsed().as_secs_f64();
+        }
         let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
             if self.plan.has(Stage::Ghosts) {
@@ -493,9 +531,12 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                     VectorKind::Velocity,
                 );
             }
+            let ls = (self.params.projection.gradient == GradientKind::LeastSquares)
+                .then_some((&self.particles.x[..], &self.particles.role[..]));
             self.convection.accel_into(
                 &self.nl,
                 &self.particles.vol,
+                ls,
                 &self.particles.u,
                 self.params.integrator,
                 dt,
@@ -516,7 +557,6 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             accel,
             &mut u_star,
         )?;
-        let mut advect_seconds = 0.0;
         let mut report = self.projection.project(
             &mut self.particles,
             &self.nl,
@@ -526,28 +566,6 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &u_star,
         )?;
         pred.add_to(&mut report);
-        let mut moved = shifting::Moved::default();
-        if lagrangian {
-            // move with uⁿ⁺¹ (divergence-free on the configuration it was projected on), shift,
-            // keep off the walls; the neighbours are refreshed at the start of the next step
-            let t1 = Instant::now();
-            let sh = self
-                .params
-                .shifting
-                .filter(|_| self.plan.has(Stage::Shifting));
-            moved = shifting::advance_particles(
-                sh.as_ref(),
-                self.params.dx,
-                dt,
-                WALL_MARGIN * self.params.dx,
-                &mut self.particles,
-                &self.nl,
-                &self.boundary,
-                &mut self.shift_scratch,
-            )?;
-            self.stale = true;
-            advect_seconds += t1.elapsed().as_secs_f64();
-        }
         let max_shift = moved.max_shift;
         self.time += dt;
         if let Some(t) = land {

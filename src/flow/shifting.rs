@@ -106,15 +106,15 @@ pub(crate) struct Moved {
     pub wall_pushes: usize,
 }
 
-/// Moves the fluid particles of `p` with their (projected) velocity, `x += Δt u`, plus a shift
-/// `δ_i`: the Fickian shift of `sh` (when given) computed at the configuration of `nl`, and the
-/// wall part [`Boundary::wall_margin_push`] that keeps every particle at least `margin` inside
-/// the walls. Velocity and pressure are corrected to the shifted position by a first-order
-/// Taylor expansion with the gradients at the configuration of `nl` (always for the wall part;
-/// for the Fickian part when `sh.correct`). Then confines the particles (periodic wrap, a
-/// particle still outside is an error) and returns the largest shift and the number of wall
-/// pushes. `dx` is the particle spacing; `ghosts`: the ghosts' velocities and pressures are
-/// filled (they are after a projection).
+/// Moves the fluid particles of `p` with the velocity `u` (the predictor's `u*`: the
+/// projection then runs on the moved configuration), `x += Δt u`, plus a shift `δ_i`: the
+/// Fickian shift of `sh` (when given) computed at the configuration of `nl`, and the wall part
+/// [`Boundary::wall_margin_push`] that keeps every particle at least `margin` inside the walls.
+/// `u` and the pressure are corrected to the shifted position by a first-order Taylor
+/// expansion with the gradients at the configuration of `nl` (always for the wall part; for the
+/// Fickian part when `sh.correct`). Then confines the particles (periodic wrap, a particle still
+/// outside is an error) and returns the largest shift and the number of wall pushes. `dx` is
+/// the particle spacing; `u` covers every particle (its ghost entries are refilled here).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     sh: Option<&Shifting>,
@@ -122,20 +122,29 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     dt: f64,
     margin: f64,
     p: &mut Particles<D>,
+    u: &mut [[f64; D]],
     nl: &NeighborList<D>,
     boundary: &B,
     s: &mut ShiftScratch<D>,
 ) -> Result<Moved, Error> {
     let n = p.len();
+    assert_eq!(u.len(), n, "the advection velocity covers every particle");
+    if boundary.has_ghosts() {
+        boundary.fill_vector(&p.role, u, crate::boundary::VectorKind::Velocity);
+    }
     let kernel = *nl.kernel();
     let h = nl.h();
-    let umax = p.max_fluid_speed();
+    let umax = (0..n)
+        .filter(|&i| p.role[i].is_fluid())
+        .map(|i| norm2(&u[i]).sqrt())
+        .fold(0.0, f64::max);
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
     // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
     s.shift.resize(n, [0.0; D]);
     let w_dx = kernel.w_h(dx);
     {
         let p = &*p;
+        let u = &*u;
         s.shift.par_iter_mut().enumerate().for_each(|(i, s)| {
             *s = [0.0; D];
             let Some(sh) = sh else { return };
@@ -159,7 +168,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             let speed = if sh.global_speed {
                 umax
             } else {
-                norm2(&p.u[i]).sqrt()
+                norm2(&u[i]).sqrt()
             };
             let f = -sh.coefficient * h * speed * dt;
             let mut d: [f64; D] = gc.map(|g| f * g);
@@ -180,7 +189,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         if !p.role[i].is_fluid() {
             continue;
         }
-        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + dt * p.u[i][a] + s.shift[i][a]);
+        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + dt * u[i][a] + s.shift[i][a]);
         let w = boundary.wall_margin_push(&x, margin);
         if w.iter().any(|&v| v != 0.0) {
             wall_pushes += 1;
@@ -196,7 +205,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     if correct_fick || wall_pushes > 0 {
         // Taylor correction of u and p to the shifted position (gradients before the move)
         s.grad.resize(n, [[0.0; D]; D]);
-        grad_vec_into(nl, &p.vol, &p.u, &mut s.grad);
+        grad_vec_into(nl, &p.vol, u, &mut s.grad);
         s.gp.resize(n, [0.0; D]);
         grad_diff_into(nl, &p.vol, &p.p, &mut s.gp);
     }
@@ -209,13 +218,13 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         } else {
             s.wall[i]
         };
-        let u = p.u[i];
+        let ui = u[i];
         for a in 0..D {
-            p.x[i][a] += dt * u[a] + s.shift[i][a] + s.wall[i][a];
+            p.x[i][a] += dt * ui[a] + s.shift[i][a] + s.wall[i][a];
         }
         if d.iter().any(|&v| v != 0.0) {
             for a in 0..D {
-                p.u[i][a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
+                u[i][a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
             }
             p.p[i] += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
         }

@@ -17,13 +17,14 @@
 
 use super::{ProjectionParams, Scheme, SourceKind};
 use crate::boundary::{Boundary, VectorKind};
-use crate::consistent::{div_renormalised_into, Renormalisation};
+use crate::consistent::{div_renormalised_into, GradientOperator};
 use crate::diagnostics::{norm_l2, Region};
 use crate::error::SolveError;
 use crate::math::norm2;
 use crate::neighbors::NeighborList;
 use crate::operators::div_sum_into;
 use crate::particles::Role;
+use rayon::prelude::*;
 
 /// The source field `f_i = scale · v_i` (the projection uses `scale = −ρ/Δt`, `v = u*`) on the
 /// fluid and the ghosts, `f_i = 0` on the Dirichlet band; when the boundary has ghosts and
@@ -56,23 +57,27 @@ pub fn source_field<const D: usize>(
 /// * [`SourceKind::SumForm`]: `∇̂h·v_i = d Σ_j ω_j (v_j + v_i)·x_ji w_h/r²`;
 /// * [`SourceKind::AdjointBt`]: `∇̂h·(Bᵀv)`, with `Bᵀv` continued into the ghosts by the mirror
 ///   rule when `ghost_rule` is [`VectorKind::Mirror`] (as `v` was);
-/// * [`SourceKind::Renormalised`]: `∇ᶜ·v_i = Σ_a (B_i ∇h v_a)_a`.
+/// * [`SourceKind::Renormalised`]: `∇ᶜ·v_i = Σ_a (B_i ∇h v_a)_a`;
+/// * [`SourceKind::LeastSquares`]: `∇ˡˢ·v_i = Σ_a (∇ˡˢ v_a)_a`.
 ///
-/// `renorm` holds the matrices `B` (brought up to date here when the kind needs them);
+/// `ops` holds the matrices `B` and the least-squares coefficients (brought up to date here
+/// when the kind needs them);
 /// `work` is scratch.
 #[allow(clippy::too_many_arguments)]
 pub fn divergence_into<const D: usize>(
     nl: &NeighborList<D>,
     vol: &[f64],
+    x: &[[f64; D]],
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
     kind: SourceKind,
-    renorm: &mut Renormalisation<D>,
+    ops: &mut GradientOperator<D>,
     v: &[[f64; D]],
     work: &mut Vec<[f64; D]>,
     out: &mut Vec<f64>,
 ) {
+    let renorm = &mut ops.renorm;
     let n = nl.len();
     out.resize(n, 0.0);
     match kind {
@@ -89,6 +94,10 @@ pub fn divergence_into<const D: usize>(
         SourceKind::Renormalised => {
             renorm.update(nl, vol, n);
             div_renormalised_into(nl, vol, renorm, v, out);
+        }
+        SourceKind::LeastSquares => {
+            ops.ls_walls.update(nl, vol, n, Some((x, role)));
+            ops.ls_walls.div_into(nl, v, out);
         }
     }
 }
@@ -148,11 +157,12 @@ pub fn correct<const D: usize>(
 pub fn measure_divergence<const D: usize>(
     nl: &NeighborList<D>,
     vol: &[f64],
+    x: &[[f64; D]],
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
     kind: SourceKind,
-    renorm: &mut Renormalisation<D>,
+    ops: &mut GradientOperator<D>,
     v: &[[f64; D]],
     work: &mut Vec<[f64; D]>,
     work2: &mut Vec<[f64; D]>,
@@ -160,7 +170,7 @@ pub fn measure_divergence<const D: usize>(
 ) -> f64 {
     source_field(role, boundary, ghost_rule, 1.0, v, work);
     divergence_into(
-        nl, vol, role, boundary, ghost_rule, kind, renorm, work, work2, div,
+        nl, vol, x, role, boundary, ghost_rule, kind, ops, work, work2, div,
     );
     norm_l2(vol, div, role, Region::Omega)
 }
@@ -208,4 +218,33 @@ pub fn energy<const D: usize>(
         }
     }
     Ok((ke, vmax.sqrt()))
+}
+
+/// One damped Jacobi sweep with the Poisson matrix on the fluid rows:
+/// `p_i ← p_i + β (Δh p)_i / |(Δh)_ii|`, `(Δh)_ii = −2d Σ_j ω_j w_h/r²` (ghost values read as
+/// they are: the caller fills them first). A sweep is stable for `β ∈ [0, 1)` whatever the
+/// distribution; see [`ProjectionParams::pressure_smoothing`].
+pub fn smooth_pressure<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    role: &[Role],
+    beta: f64,
+    p: &mut [f64],
+) {
+    let old = p.to_vec();
+    p.par_iter_mut().enumerate().for_each(|(i, pi)| {
+        if !role[i].is_fluid() {
+            return;
+        }
+        let (mut num, mut den) = (0.0, 0.0);
+        for k in nl.row(i) {
+            let j = nl.indices()[k] as usize;
+            let c = vol[j] * nl.wr2()[k];
+            num += c * (old[j] - old[i]);
+            den += c;
+        }
+        if den > 0.0 {
+            *pi = old[i] + beta * num / den;
+        }
+    });
 }

@@ -26,7 +26,7 @@
 
 use super::RecordError;
 use crate::boundary::{Boundary, NoBoundary, PeriodicBox, VectorKind, Wall, Walls};
-use crate::consistent::GradientKind;
+use crate::consistent::{GradientKind, LaplacianKind};
 use crate::flow::{DtLimit, FlowReport};
 use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
@@ -139,12 +139,17 @@ unit_enum_schema!(
 unit_enum_schema!(
     SourceKind,
     "divergence of the source: sum_form (∇̂h·), adjoint_bt (∇̂h·(Bᵀ·)) or renormalised (∇ᶜ·)",
-    [SumForm, AdjointBt, Renormalised]
+    [SumForm, AdjointBt, Renormalised, LeastSquares]
 );
 unit_enum_schema!(
     GradientKind,
     "gradient of the predictor and the correction: difference (adjoint to the source) or renormalised",
-    [Difference, Renormalised]
+    [Difference, Renormalised, LeastSquares]
+);
+unit_enum_schema!(
+    LaplacianKind,
+    "Laplacian of the viscous term: gpm (Δh) or least_squares (Δˡˢ)",
+    [Gpm, LeastSquares]
 );
 
 impl JsonSchema for Weight {
@@ -1256,6 +1261,12 @@ pub struct ProjectionSpec {
     /// Divergence of the source (files before it was recorded: sum form).
     #[serde(default)]
     pub source: crate::projection::SourceKind,
+    /// Laplacian of the viscous term (files before it was recorded: gpm).
+    #[serde(default)]
+    pub laplacian: LaplacianKind,
+    /// Weight of the pressure smoothing sweep (files before it was recorded: 0).
+    #[serde(default)]
+    pub pressure_smoothing: f64,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1302,6 +1313,8 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             reuse_diagnostics,
             gradient,
             source,
+            laplacian,
+            pressure_smoothing,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1315,6 +1328,8 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             reuse_diagnostics,
             gradient,
             source,
+            laplacian,
+            pressure_smoothing,
         }
     }
 }
@@ -1334,6 +1349,8 @@ impl ProjectionSpec {
             reuse_diagnostics: self.reuse_diagnostics,
             gradient: self.gradient,
             source: self.source,
+            laplacian: self.laplacian,
+            pressure_smoothing: self.pressure_smoothing,
         })
     }
 }

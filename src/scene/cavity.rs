@@ -71,8 +71,11 @@ pub type CavityConfig = SceneConfig<Cavity>;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SourceGhosts {
-    /// Normal component flipped, tangential kept: exact adjointness, Theorem 4.5 applies.
+    /// The operator set's rule: mirror for the GPM operators, no-slip for the consistent ones
+    /// (see [`crate::projection::ProjectionParams::with_consistent_operators`]).
     #[default]
+    Auto,
+    /// Normal component flipped, tangential kept: exact adjointness, Theorem 4.5 applies.
     Mirror,
     /// The no-slip velocity images (wall velocity enters the source).
     NoSlip,
@@ -82,20 +85,23 @@ impl std::str::FromStr for SourceGhosts {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         match s.trim().to_ascii_lowercase().replace('-', "_").as_str() {
+            "auto" => Ok(SourceGhosts::Auto),
             "mirror" => Ok(SourceGhosts::Mirror),
             "no_slip" | "noslip" => Ok(SourceGhosts::NoSlip),
             _ => Err(format!(
-                "unknown source ghost rule '{s}': expected mirror or no-slip"
+                "unknown source ghost rule '{s}': expected auto, mirror or no-slip"
             )),
         }
     }
 }
 
-impl From<SourceGhosts> for crate::boundary::VectorKind {
-    fn from(s: SourceGhosts) -> Self {
-        match s {
-            SourceGhosts::Mirror => crate::boundary::VectorKind::Mirror,
-            SourceGhosts::NoSlip => crate::boundary::VectorKind::Velocity,
+impl SourceGhosts {
+    /// The rule, `None` for [`SourceGhosts::Auto`] (the operator set's).
+    pub fn rule(self) -> Option<crate::boundary::VectorKind> {
+        match self {
+            SourceGhosts::Auto => None,
+            SourceGhosts::Mirror => Some(crate::boundary::VectorKind::Mirror),
+            SourceGhosts::NoSlip => Some(crate::boundary::VectorKind::Velocity),
         }
     }
 }
@@ -105,7 +111,7 @@ impl Default for Cavity {
         Cavity {
             steady: SteadyCriterion::default(),
             lid: 1.0,
-            source_ghosts: SourceGhosts::Mirror,
+            source_ghosts: SourceGhosts::Auto,
         }
     }
 }
@@ -159,7 +165,9 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     }
     let walls = Walls::cavity(1.0, cfg.scene.lid);
     let mut params = cfg.flow_params(cfg.scene.lid);
-    params.projection.source_ghosts = cfg.scene.source_ghosts.into();
+    if let Some(rule) = cfg.scene.source_ghosts.rule() {
+        params.projection.source_ghosts = rule;
+    }
     Simulation::new(p, walls, cfg.neighbor_config(), params)
 }
 

@@ -131,6 +131,10 @@ pub fn build(cfg: &ChannelConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     let walls = Walls::channel([0.0, 0.0], [len, 1.0]);
     let uc = cfg.scene.centre_speed(cfg.re);
     let mut params = cfg.flow_params(uc);
+    if cfg.operators.consistent(cfg.scene.jitter > 0.0) {
+        // disordered fixed particles
+        params.projection = params.projection.with_consistent_operators();
+    }
     params.projection.gravity = [cfg.scene.body_force, 0.0];
     Simulation::new(p, walls, cfg.neighbor_config(), params)
 }

@@ -84,6 +84,8 @@ pub struct FlowConfig {
     pub volumes: VolumeRule,
     /// Pair weights (`"plain"` or `"moment"`).
     pub pair_weights: crate::pair_weights::PairWeights,
+    /// Operator set (`"auto"`, `"gpm"` or `"consistent"`, see [`OperatorSet`]).
+    pub operators: OperatorSet,
     /// Time-step limits: `cfl`, `visc`, `force` in (0, 1], `u_ref` in [0, 10⁶], `dt_max` and
     /// `dt_fixed` positive and finite when set (see [`FlowConfig::validate`]).
     pub limits: TimeStepLimits,
@@ -110,6 +112,7 @@ impl Default for FlowConfig {
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
             pair_weights: Default::default(),
+            operators: OperatorSet::Auto,
             limits: TimeStepLimits::default(),
             solve: SolveParams::default(),
         }
@@ -227,6 +230,9 @@ impl FlowConfig {
         let mut projection = ProjectionParams::new(u_ref.abs() / self.re);
         projection.scheme = self.scheme;
         projection.gradient = self.gradient;
+        if self.operators.consistent(self.motion == Motion::Lagrangian) {
+            projection = projection.with_consistent_operators();
+        }
         projection.viscous_theta = self.viscous_theta;
         projection.solve = self.solve;
         projection.allowed_floating = 1;
@@ -245,6 +251,49 @@ impl FlowConfig {
             volumes: self.volumes,
             pair_weights: self.pair_weights,
             dx: self.dx(),
+        }
+    }
+}
+
+/// Which operators a flow uses besides the Poisson matrix (always the GPM `Δh`: SPD under
+/// h-connectivity, so the theory's checks apply to every set).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OperatorSet {
+    /// `consistent` for moving particles (and for scenes whose fixed particles are
+    /// disordered, e.g. a jittered channel), `gpm` on a lattice.
+    #[default]
+    Auto,
+    /// The GPM forms: sum-form divergence `∇̂h·`, the `gradient` key's gradient, `Δh` for the
+    /// viscous term (Lemma 4.3's adjoint pair; consistent only on symmetric neighbourhoods).
+    Gpm,
+    /// The consistent forms of [`ProjectionParams::with_consistent_operators`]: `∇ᶜ·` for the
+    /// source and the rotational term, `∇ᶜ` for the pressure gradients, `Δˡˢ` for viscosity
+    /// (exact on linear / quadratic fields on any distribution; `∇ᶜ·` and `∇ᶜ` not adjoint).
+    Consistent,
+}
+
+impl OperatorSet {
+    /// Whether the set is the consistent one, `disordered` deciding [`OperatorSet::Auto`].
+    pub fn consistent(self, disordered: bool) -> bool {
+        match self {
+            OperatorSet::Auto => disordered,
+            OperatorSet::Gpm => false,
+            OperatorSet::Consistent => true,
+        }
+    }
+}
+
+impl std::str::FromStr for OperatorSet {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(OperatorSet::Auto),
+            "gpm" => Ok(OperatorSet::Gpm),
+            "consistent" => Ok(OperatorSet::Consistent),
+            _ => Err(format!(
+                "unknown operator set '{s}': expected auto, gpm or consistent"
+            )),
         }
     }
 }
@@ -299,6 +348,7 @@ config_fields!(FlowConfig {
     shifting,
     volumes,
     pair_weights,
+    operators,
     limits,
     solve
 });
