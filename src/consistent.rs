@@ -723,6 +723,10 @@ impl std::fmt::Display for LaplacianKind {
     }
 }
 
+/// Largest `max|A| · max|A⁻¹|` of a least-squares normal matrix (in the scaled basis) before the
+/// row falls back to the GPM coefficients.
+const LS_MAX_CONDITION: f64 = 1e5;
+
 /// The weighted least-squares gradient and Laplacian of [`ls_gradient_laplacian`] written as
 /// pair coefficients: `∇ˡˢφ_i = Σ_j g_ij (φ_j − φ_i)` and `Δˡˢφ_i = Σ_j c_ij (φ_j − φ_i)`. With the
 /// quadratic basis `p(x̂)` of `x̂ = x_ji/h` and the normal matrix `A_i = Σ_j ω_j w_h p pᵀ`,
@@ -870,7 +874,7 @@ impl<const D: usize> LsOperators<D> {
                     let ok = inv.as_ref().is_some_and(|inv| {
                         let na = a.iter().map(|v| v.abs()).fold(0.0, f64::max);
                         let ni = inv.iter().map(|v| v.abs()).fold(0.0, f64::max);
-                        na * ni < 1e5
+                        na * ni < LS_MAX_CONDITION
                     });
                     match inv {
                         Some(inv) if ok => {
