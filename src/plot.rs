@@ -151,6 +151,29 @@ pub fn line_chart(path: &Path, chart: &Chart, series: &[Series]) -> Result<(), P
     line_charts(path, 900, 650, &[(chart.clone(), series.to_vec())])
 }
 
+/// A compact tick label: `0.25`, `1200`, `1e-7` (log-axis ticks come out of plotters as
+/// `1.000000000000001e-7` otherwise).
+fn tick(v: f64) -> String {
+    let a = v.abs();
+    if v == 0.0 {
+        "0".into()
+    } else if (1e-3..1e5).contains(&a) {
+        let s = format!("{v:.4}");
+        let s = s.trim_end_matches('0').trim_end_matches('.');
+        s.to_string()
+    } else {
+        let s = format!("{v:.2e}");
+        // 1.00e-7 → 1e-7, 2.50e3 → 2.5e3
+        match s.split_once('e') {
+            Some((m, e)) => {
+                let m = m.trim_end_matches('0').trim_end_matches('.');
+                format!("{m}e{e}")
+            }
+            None => s,
+        }
+    }
+}
+
 fn draw_chart<DB: DrawingBackend>(
     path: &Path,
     area: &DrawingArea<DB, plotters::coord::Shift>,
@@ -178,6 +201,8 @@ where
         ($ctx:expr) => {{
             let mut ctx = $ctx;
             ctx.configure_mesh()
+                .x_label_formatter(&|v| tick(*v))
+                .y_label_formatter(&|v| tick(*v))
                 .x_desc(chart.x_label.as_str())
                 .y_desc(chart.y_label.as_str())
                 .label_style(("sans-serif", 14))
