@@ -1363,6 +1363,74 @@ fn lattice<'py>(
     }
 }
 
+/// The loop of `examples/own_loop.rs` (and `examples/own_loop.py`) run entirely in Rust, for
+/// `examples/bench_overhead.py`: the same particles, forces, advection and calls, no recording.
+/// Returns the wall seconds of each step and the kinetic energy after each step (so that the
+/// benchmark can check that both loops did the same work).
+#[pyfunction]
+fn _rust_own_loop(
+    py: Python<'_>,
+    n: usize,
+    steps: usize,
+    dt: f64,
+    drag: f64,
+) -> PyResult<(Vec<f64>, Vec<f64>)> {
+    use gpm::geometry::number_density_volumes;
+    use std::f64::consts::PI;
+    py.detach(|| -> Result<(Vec<f64>, Vec<f64>), Error> {
+        let dx = 1.0 / n as f64;
+        let periodic = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
+        let boundary = PeriodicBox { periodic };
+        let mut particles = Particles::<2>::new();
+        for x in gpm::geometry::lattice([0.0, 0.0], [1.0, 1.0], dx) {
+            let (s2x, c2x) = (2.0 * PI * x[0]).sin_cos();
+            let (s2y, c2y) = (2.0 * PI * x[1]).sin_cos();
+            particles.push(x, [-c2x * s2y, s2x * c2y], 0.0, dx * dx, Role::Fluid);
+        }
+        let mut nl = NeighborList::build(
+            NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.3)
+                .with_periodicity(periodic),
+            &particles.x,
+        )?;
+        let mut params = ProjectionParams::<2>::new(0.01);
+        params.scheme = Scheme::Incremental;
+        let mut step = ProjectionStep::<2>::new();
+        let mut u_star = Vec::new();
+        let (mut seconds, mut energy) = (Vec::new(), Vec::new());
+        for _ in 0..steps {
+            let t = std::time::Instant::now();
+            nl.update(&particles.x)?;
+            particles.vol = number_density_volumes(&nl);
+            let forces: Vec<[f64; 2]> = particles
+                .u
+                .iter()
+                .map(|u| [-drag * u[0], -drag * u[1]])
+                .collect();
+            step.predict(
+                &mut particles,
+                &nl,
+                &boundary,
+                &params,
+                dt,
+                Some(&forces),
+                &mut u_star,
+            )?;
+            for (x, u) in particles.x.iter_mut().zip(&u_star) {
+                x[0] += dt * u[0];
+                x[1] += dt * u[1];
+                periodic.wrap(x);
+            }
+            nl.update(&particles.x)?;
+            particles.vol = number_density_volumes(&nl);
+            let report = step.project(&mut particles, &nl, &boundary, &params, dt, &u_star)?;
+            seconds.push(t.elapsed().as_secs_f64());
+            energy.push(report.kinetic_energy);
+        }
+        Ok((seconds, energy))
+    })
+    .py()
+}
+
 #[pymodule]
 fn _gpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<System>()?;
@@ -1371,6 +1439,7 @@ fn _gpm(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Recorder>()?;
     m.add_function(wrap_pyfunction!(run_scene, m)?)?;
     m.add_function(wrap_pyfunction!(lattice, m)?)?;
+    m.add_function(wrap_pyfunction!(_rust_own_loop, m)?)?;
     m.add("SCENES", gpm::scene::SCENES.to_vec())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
