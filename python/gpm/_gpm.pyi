@@ -253,7 +253,8 @@ class Recorder:
     ``/diagnostics`` per step, and at level ``"full"`` every ``every`` steps a particle
     snapshot and (with ``System.capture``) the projection's inputs. Readable by ``gpm replay``
     and the Python ``mcap`` package. The file is written as ``path.partial`` and renamed by
-    :meth:`finish` (or on leaving a ``with`` block).
+    :meth:`finish` (or on leaving a ``with`` block; a block that raised leaves
+    ``run.failed.mcap``, gpm's convention for a failed run).
 
     Raises:
         RecordError: the file cannot be created (naming it).
@@ -277,4 +278,5 @@ class Recorder:
     @property
     def path(self) -> str: ...
     def __enter__(self) -> Recorder: ...
-    def __exit__(self, *args: Any) -> bool: ...
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+        """Finishes the file; if the block raised, keeps it as ``run.failed.mcap`` instead."""

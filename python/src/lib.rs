@@ -1204,14 +1204,21 @@ impl Recorder {
         slf
     }
 
-    #[pyo3(signature = (*_args))]
+    /// Leaving a `with` block finishes the file; when the block raised, the file is kept as
+    /// `run.failed.mcap` (gpm's `finish_failed`) and the exception propagates.
+    #[pyo3(signature = (exc_type, _exc, _tb))]
     fn __exit__(
         &mut self,
-        py: Python<'_>,
-        _args: &Bound<'_, pyo3::types::PyTuple>,
+        exc_type: &Bound<'_, PyAny>,
+        _exc: &Bound<'_, PyAny>,
+        _tb: &Bound<'_, PyAny>,
     ) -> PyResult<bool> {
-        if self.inner.is_some() {
-            self.finish(py)?;
+        if let Some(rec) = self.inner.take() {
+            if exc_type.is_none() {
+                rec.finish().py()?;
+            } else {
+                rec.finish_failed().py()?;
+            }
         }
         Ok(false)
     }

@@ -78,3 +78,17 @@ def test_finish_twice_and_record_after_finish(tmp_path):
     with pytest.raises(gpm.InputError) as e:
         gpm.Recorder(tmp_path / "b.mcap").record(sys_, r, 0, 0.0)
     assert e.value.parameter == "step"
+
+
+def test_a_failed_block_keeps_the_steps_as_failed_file(tmp_path):
+    dx = 1.0 / 12
+    x = gpm.lattice([0, 0], [1, 1], dx)
+    sys_ = gpm.System(x, np.zeros_like(x), h=3 * dx,
+                      boundary=gpm.Boundary.periodic([0, 0], [1, 1]))
+    with pytest.raises(gpm.InputError):
+        with gpm.Recorder(tmp_path / "run.mcap") as rec:
+            rec.record(sys_, sys_.step(0.01), 1, 0.01)
+            sys_.step(-1.0)  # fails: dt
+    assert not (tmp_path / "run.mcap").exists()
+    _, steps = read_diagnostics(tmp_path / "run.failed.mcap")
+    assert [s["step"] for s in steps] == [1]
