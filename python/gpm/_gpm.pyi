@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from os import PathLike
-from typing import Any, Dict, List, Literal, Optional, Sequence, Union
+from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +20,10 @@ __version__: str
 def lattice(lo: Sequence[float], hi: Sequence[float], dx: float) -> FloatArray:
     """The cell-centred lattice of spacing ``dx`` in the box ``[lo, hi]`` (2 or 3 dimensions):
     points ``lo + (i + 0.5) dx``, the last axis varying fastest. Shape ``(n, dim)``."""
+
+def _rust_own_loop(n: int, steps: int, dt: float, drag: float) -> Tuple[List[float], List[float]]:
+    """The loop of ``examples/own_loop.rs`` run entirely in Rust (for ``bench_overhead.py``):
+    the wall seconds and the kinetic energy of each step."""
 
 def run_scene(
     name: str,
