@@ -123,6 +123,30 @@ struct RenormKey {
     vol: Vec<f64>,
 }
 
+impl RenormKey {
+    /// Whether `key` describes `nl`, `vol` and `rows` (no allocation); otherwise the key for
+    /// them, to be stored once the cache is recomputed.
+    fn fresh<const D: usize>(
+        key: &Option<RenormKey>,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        rows: usize,
+    ) -> Option<RenormKey> {
+        let same = key.as_ref().is_some_and(|k| {
+            k.epoch == nl.epoch()
+                && k.generation == nl.generation()
+                && k.rows == rows
+                && k.vol == vol
+        });
+        (!same).then(|| RenormKey {
+            epoch: nl.epoch(),
+            generation: nl.generation(),
+            rows,
+            vol: vol.to_vec(),
+        })
+    }
+}
+
 /// The renormalisation matrices `B_i = M_i⁻¹` of the corrected gradient
 /// `∇ᶜφ_i = B_i ∇h φ_i` (Bonet & Lok 1999, *Variational and momentum preservation aspects of
 /// smooth particle hydrodynamic formulations*, CMAME 180; Randles & Libersky 1996), with
@@ -171,15 +195,9 @@ impl<const D: usize> Renormalisation<D> {
     /// true when it recomputed.
     pub fn update(&mut self, nl: &NeighborList<D>, vol: &[f64], rows: usize) -> bool {
         assert!(rows <= nl.len(), "rows beyond the neighbour list");
-        let key = RenormKey {
-            epoch: nl.epoch(),
-            generation: nl.generation(),
-            rows,
-            vol: vol.to_vec(),
-        };
-        if self.key.as_ref() == Some(&key) {
+        let Some(key) = RenormKey::fresh(&self.key, nl, vol, rows) else {
             return false;
-        }
+        };
         let min_iso = self.min_isotropy;
         let res: Vec<(Mat<D>, bool)> = (0..rows)
             .into_par_iter()
@@ -789,15 +807,9 @@ impl<const D: usize> LsOperators<D> {
         geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
     ) -> bool {
         assert!(rows <= nl.len(), "rows beyond the neighbour list");
-        let key = RenormKey {
-            epoch: nl.epoch(),
-            generation: nl.generation(),
-            rows,
-            vol: vol.to_vec(),
-        };
-        if self.key.as_ref() == Some(&key) {
+        let Some(key) = RenormKey::fresh(&self.key, nl, vol, rows) else {
             return false;
-        }
+        };
         let m = n_quadratic(D);
         let hinv = 1.0 / nl.h();
         let hinv2 = hinv * hinv;

@@ -10,7 +10,6 @@
 use crate::consistent::LsOperators;
 use crate::neighbors::NeighborList;
 use crate::operators::grad_vec_into;
-use crate::particles::Role;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -40,17 +39,10 @@ impl std::str::FromStr for Integrator {
 
 /// The convective term's state between steps: the previous `N` and its `Δt` (for AB2), and the
 /// velocity-gradient scratch.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub struct Convection<const D: usize> {
     prev: Option<(Vec<[f64; D]>, f64)>,
     grad: Vec<[[f64; D]; D]>,
-    ls: LsOperators<D>,
-}
-
-impl<const D: usize> Default for Convection<D> {
-    fn default() -> Self {
-        Self::new()
-    }
 }
 
 impl<const D: usize> Convection<D> {
@@ -59,21 +51,21 @@ impl<const D: usize> Convection<D> {
         Convection {
             prev: None,
             grad: Vec::new(),
-            ls: LsOperators::at_walls(),
         }
     }
 
     /// Writes the convective acceleration `−N` (Euler) or `−((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)` (AB2)
     /// of velocities `u` (ghosts already filled) into `out`, and keeps `Nⁿ` and `dt` for the
     /// next step. AB2 falls back to Euler when there is no previous step or the particle count
-    /// changed. With `least_squares = Some((x, role))` the gradient is the least-squares one
-    /// (wall variant), otherwise the difference gradient.
+    /// changed. With `least_squares` (coefficients for the configuration of `nl`, e.g.
+    /// [`crate::projection::ProjectionStep::velocity_least_squares`]) the gradient is the
+    /// least-squares one, otherwise the difference gradient.
     #[allow(clippy::too_many_arguments)]
     pub fn accel_into(
         &mut self,
         nl: &NeighborList<D>,
         vol: &[f64],
-        least_squares: Option<(&[[f64; D]], &[Role])>,
+        least_squares: Option<&LsOperators<D>>,
         u: &[[f64; D]],
         integrator: Integrator,
         dt: f64,
@@ -81,9 +73,8 @@ impl<const D: usize> Convection<D> {
     ) {
         let n = u.len();
         self.grad.resize(n, [[0.0; D]; D]);
-        if let Some(geometry) = least_squares {
-            self.ls.update(nl, vol, n, Some(geometry));
-            self.ls.grad_vec_into(nl, u, &mut self.grad);
+        if let Some(ls) = least_squares {
+            ls.grad_vec_into(nl, u, &mut self.grad);
         } else {
             grad_vec_into(nl, vol, u, &mut self.grad);
         }

@@ -531,8 +531,11 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                     VectorKind::Velocity,
                 );
             }
-            let ls = (self.params.projection.gradient == GradientKind::LeastSquares)
-                .then_some((&self.particles.x[..], &self.particles.role[..]));
+            let ls = (self.params.projection.gradient == GradientKind::LeastSquares).then(|| {
+                let p = &self.particles;
+                self.projection
+                    .velocity_least_squares(&self.nl, &p.vol, &p.x, &p.role)
+            });
             self.convection.accel_into(
                 &self.nl,
                 &self.particles.vol,

@@ -539,6 +539,22 @@ impl<const D: usize> ProjectionStep<D> {
         r
     }
 
+    /// The least-squares coefficients of the wall variant (velocities) for the configuration
+    /// of `nl`, brought up to date here; the predictor's viscous Laplacian and the source read
+    /// the same cache, so a driver's convective term computed from it costs no second build.
+    pub fn velocity_least_squares(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        x: &[[f64; D]],
+        role: &[crate::particles::Role],
+    ) -> &crate::consistent::LsOperators<D> {
+        self.gradient
+            .ls_walls
+            .update(nl, vol, nl.len(), Some((x, role)));
+        &self.gradient.ls_walls
+    }
+
     /// Connectivity (checked against `params.allowed_floating`) and `c0`, reused while the pair
     /// data, roles and volumes are those of the last call (with `params.reuse_diagnostics`).
     fn diagnostics(
