@@ -12,6 +12,12 @@
 //! the candidates do; [`NeighborList::epoch`] changes exactly when they are rebuilt.
 //! [`NeighborList::brute_force`] is the O(N²) reference kept for tests.
 
+/// The next candidate-list epoch: process-wide, starting at 1.
+fn next_epoch() -> u64 {
+    static EPOCHS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+    EPOCHS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
 use crate::error::InputError;
 use crate::kernel::{Kernel, Weight};
 use crate::math::{is_finite, norm2};
@@ -244,7 +250,7 @@ impl<const D: usize> NeighborList<D> {
         nl.cand_offsets = offsets;
         nl.cand_indices = indices;
         nl.x_ref = x.to_vec();
-        nl.epoch = 1;
+        nl.epoch = next_epoch();
         nl.rebuilds = 1;
         nl.measure(x)?;
         Ok(nl)
@@ -315,7 +321,9 @@ impl<const D: usize> NeighborList<D> {
     pub fn row(&self, i: usize) -> std::ops::Range<usize> {
         self.offsets[i]..self.offsets[i + 1]
     }
-    /// Changes exactly when the candidate list (the sparsity pattern) is rebuilt.
+    /// Changes exactly when the candidate list (the sparsity pattern) is rebuilt; unique in the
+    /// process (never 0 once built), so that caches keyed on it (the Poisson pattern, the
+    /// least-squares coefficients) cannot mistake one list for another.
     pub fn epoch(&self) -> u64 {
         self.epoch
     }
@@ -485,7 +493,7 @@ impl<const D: usize> NeighborList<D> {
         self.cand_offsets = offsets;
         self.cand_indices = indices;
         self.x_ref = x.to_vec();
-        self.epoch += 1;
+        self.epoch = next_epoch();
         self.rebuilds += 1;
         Ok(())
     }
