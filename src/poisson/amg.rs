@@ -1142,17 +1142,30 @@ impl Amg {
     /// Values-only refresh: same aggregates and prolongators, new Galerkin operators, smoothers
     /// and coarse factor for the new values of `a`. The finest level's spectral radius is kept
     /// from the build (it only sets the Jacobi weight; see the module docs); coarse levels get new
-    /// estimates. `a` must have the pattern the hierarchy was built from (same rows; checked
-    /// loosely: rows and stored entries).
+    /// estimates. `a` must have the unknowns the hierarchy was built for; its pattern may
+    /// differ (particles that moved: the aggregates then group the same particles as at the
+    /// build, which stays a good coarse space while they move less than an aggregate's size).
     pub fn refresh(&mut self, a: CsrRef<'_>) {
+        self.refresh_inner(a, false);
+    }
+
+    /// [`Self::refresh`] for a matrix whose pattern changed (the same unknowns): the finest
+    /// level's spectral radius is estimated again (see
+    /// [`Self::update_fine_smoother_new_pattern`]).
+    pub fn refresh_new_pattern(&mut self, a: CsrRef<'_>) {
+        self.refresh_inner(a, true);
+    }
+
+    fn refresh_inner(&mut self, a: CsrRef<'_>, new_pattern: bool) {
         assert!(
-            a.rows() == self.n && a.nnz() == self.fine_nnz,
-            "Amg::refresh needs the pattern the hierarchy was built from"
+            a.rows() == self.n,
+            "Amg::refresh needs the unknowns the hierarchy was built for"
         );
+        self.fine_nnz = a.nnz();
         let t0 = Instant::now();
         let mut clock = Instant::now();
         let mut times = SetupTimes::default();
-        self.update_fine_smoother(a);
+        self.update_fine(a, new_pattern);
         times.aggregate += lap(&mut clock);
         for l in 0..self.transfers.len() {
             let c = {
@@ -1182,14 +1195,33 @@ impl Amg {
     /// spectral-radius estimate: the cheap step that lets a lagged hierarchy precondition a
     /// changed matrix. A hierarchy of one level (the dense solve) is refactorised instead.
     pub fn update_fine_smoother(&mut self, a: CsrRef<'_>) {
+        self.update_fine(a, false);
+    }
+
+    /// [`Self::update_fine_smoother`] for a matrix whose pattern changed (the same particles
+    /// moved): the finest level's spectral radius is estimated again, since a Jacobi weight set
+    /// for the old matrix may exceed the new one's stable range (the V-cycle is then not
+    /// positive definite).
+    pub fn update_fine_smoother_new_pattern(&mut self, a: CsrRef<'_>) {
+        self.update_fine(a, true);
+    }
+
+    fn update_fine(&mut self, a: CsrRef<'_>, estimate: bool) {
         assert_eq!(a.rows(), self.n, "matrix size changed");
         if self.transfers.is_empty() {
             self.coarse = Coarse::new(a, &self.params);
             self.stats.coarse_pinned = self.coarse.pinned();
             return;
         }
-        let rho = self.smoothers[0].rho;
-        self.smoothers[0] = Smoother::new(&inv_diagonal(a), self.params.smoother_weight, rho);
+        let inv_diag = inv_diagonal(a);
+        let rho = if estimate {
+            let rho = spectral_radius(a, &inv_diag, self.params.lanczos_steps);
+            self.stats.rho[0] = rho;
+            rho
+        } else {
+            self.smoothers[0].rho
+        };
+        self.smoothers[0] = Smoother::new(&inv_diag, self.params.smoother_weight, rho);
     }
 
     /// Statistics: sizes, complexity, setup time.
@@ -1384,6 +1416,10 @@ pub struct AmgReuse {
     /// The lag threshold (also: a values-only refresh whose rate exceeds `lag_factor` times the
     /// rate right after the last full rebuild asks for a full rebuild next time).
     pub lag_factor: f64,
+    /// New pattern, same unknowns (moved particles keep their indices): treat it as new
+    /// values — keep the hierarchy (with `lag`) or its aggregates and prolongators with new
+    /// Galerkin operators (with `values`) until the iteration rate asks for more.
+    pub aggregates: bool,
 }
 
 impl Default for AmgReuse {
@@ -1393,6 +1429,7 @@ impl Default for AmgReuse {
             values: true,
             lag: true,
             lag_factor: 1.5,
+            aggregates: true,
         }
     }
 }
@@ -1451,16 +1488,17 @@ impl AmgCache {
     /// Makes the hierarchy ready for the matrix of `a` and says what that took.
     pub fn prepare(&mut self, a: &Assembly, reuse: AmgReuse) -> AmgSetup {
         let m = CsrRef::from(a);
-        let same =
-            self.amg.as_ref().is_some_and(|h| h.n() == a.n()) && self.pattern_id == a.pattern_id();
-        let setup = if !same {
+        let same_n = self.amg.as_ref().is_some_and(|h| h.n() == a.n());
+        let same = same_n && self.pattern_id == a.pattern_id();
+        // the same particles under a new pattern are treated as new values (when allowed)
+        let setup = if !same_n || !(same || reuse.aggregates) {
             AmgSetup::Rebuilt
         } else {
             match self.want {
                 Want::Rebuild => AmgSetup::Rebuilt,
                 Want::Refresh if reuse.values => AmgSetup::Refreshed,
                 Want::Refresh => AmgSetup::Rebuilt,
-                Want::Nothing if reuse.unchanged && a.values_current() => AmgSetup::Reused,
+                Want::Nothing if same && reuse.unchanged && a.values_current() => AmgSetup::Reused,
                 Want::Nothing if reuse.lag => AmgSetup::Lagged,
                 Want::Nothing if reuse.values => AmgSetup::Refreshed,
                 Want::Nothing => AmgSetup::Rebuilt,
@@ -1473,14 +1511,23 @@ impl AmgCache {
                 self.rebuilds += 1;
             }
             AmgSetup::Refreshed => {
-                self.amg.as_mut().expect("hierarchy").refresh(m);
+                let h = self.amg.as_mut().expect("hierarchy");
+                if same {
+                    h.refresh(m);
+                } else {
+                    h.refresh_new_pattern(m);
+                }
+                self.pattern_id = a.pattern_id();
                 self.refreshes += 1;
             }
             AmgSetup::Lagged => {
-                self.amg
-                    .as_mut()
-                    .expect("hierarchy")
-                    .update_fine_smoother(m);
+                let h = self.amg.as_mut().expect("hierarchy");
+                if same {
+                    h.update_fine_smoother(m);
+                } else {
+                    h.update_fine_smoother_new_pattern(m);
+                }
+                self.pattern_id = a.pattern_id();
                 self.lagged += 1;
             }
             AmgSetup::Reused | AmgSetup::None => {}

@@ -114,6 +114,11 @@ pub struct SolveParams {
     /// AMG: the lag threshold (default 1.5); a values-only refresh that is itself this much
     /// slower than right after the last full rebuild triggers a full rebuild.
     pub amg_lag_factor: f64,
+    /// AMG: when the pattern changed but the unknowns are the same particles (moving particles
+    /// with a rebuilt neighbour list), treat the new matrix as new values: keep the hierarchy
+    /// (`amg_lag`) or its aggregates with new Galerkin operators (`amg_reuse_values`) until the
+    /// iteration rate asks for a refresh or a rebuild (default true).
+    pub amg_reuse_aggregates: bool,
 }
 
 impl SolveParams {
@@ -157,6 +162,7 @@ impl SolveParams {
             values: self.amg_reuse_values,
             lag: self.amg_lag,
             lag_factor: self.amg_lag_factor,
+            aggregates: self.amg_reuse_aggregates,
         }
     }
 
@@ -190,6 +196,7 @@ impl Default for SolveParams {
             amg_reuse_values: true,
             amg_lag: true,
             amg_lag_factor: 1.5,
+            amg_reuse_aggregates: true,
         }
     }
 }
