@@ -421,6 +421,10 @@ pub struct GradientOperator<const D: usize> {
     /// Cached least-squares coefficients with wall points for ghosts (velocities: the
     /// divergence, the viscous Laplacian).
     pub ls_walls: LsOperators<D>,
+    /// The configuration has no ghosts, so the wall variant equals the plain one: the
+    /// least-squares gradient reads `ls_walls` and `ls` is never built (one coefficient build
+    /// per configuration instead of two).
+    pub share_walls: bool,
 }
 
 impl<const D: usize> Default for GradientOperator<D> {
@@ -437,6 +441,24 @@ impl<const D: usize> GradientOperator<D> {
             renorm: Renormalisation::new(),
             ls: LsOperators::new(),
             ls_walls: LsOperators::at_walls(),
+            share_walls: false,
+        }
+    }
+
+    /// The plain least-squares variant (`ls_walls` when [`Self::share_walls`]).
+    pub fn plain(&self) -> &LsOperators<D> {
+        if self.share_walls {
+            &self.ls_walls
+        } else {
+            &self.ls
+        }
+    }
+
+    fn plain_mut(&mut self) -> &mut LsOperators<D> {
+        if self.share_walls {
+            &mut self.ls_walls
+        } else {
+            &mut self.ls
         }
     }
 
@@ -446,7 +468,7 @@ impl<const D: usize> GradientOperator<D> {
         match self.kind {
             GradientKind::Difference => false,
             GradientKind::Renormalised => self.renorm.update(nl, vol, nl.len()),
-            GradientKind::LeastSquares => self.ls.update(nl, vol, nl.len(), None),
+            GradientKind::LeastSquares => self.plain_mut().update(nl, vol, nl.len(), None),
         }
     }
 
@@ -455,7 +477,7 @@ impl<const D: usize> GradientOperator<D> {
         match self.kind {
             GradientKind::Difference => crate::operators::grad_diff_into(nl, vol, phi, out),
             GradientKind::Renormalised => grad_renormalised_into(nl, vol, &self.renorm, phi, out),
-            GradientKind::LeastSquares => self.ls.grad_into(nl, phi, out),
+            GradientKind::LeastSquares => self.plain().grad_into(nl, phi, out),
         }
     }
 }
@@ -868,8 +890,17 @@ impl<const D: usize> LsOperators<D> {
             .into_par_iter()
             .with_min_len(64)
             .map_init(
-                || (DMatrix::<f64>::zeros(m, m), DVector::<f64>::zeros(m)),
-                |(a, p), (i, out)| {
+                // per-thread scratch: the normal matrix, its inverse, a basis vector and
+                // its image (no allocation per row or pair)
+                || {
+                    (
+                        DMatrix::<f64>::zeros(m, m),
+                        DMatrix::<f64>::zeros(m, m),
+                        DVector::<f64>::zeros(m),
+                        DVector::<f64>::zeros(m),
+                    )
+                },
+                |(a, inv, p, y), (i, out)| {
                     a.fill(0.0);
                     for k in nl.row(i) {
                         let (dk, wk) = point(k, nl.indices()[k] as usize);
@@ -878,43 +909,38 @@ impl<const D: usize> LsOperators<D> {
                         a.ger(wk, p, p, 1.0);
                     }
                     let start = nl.row(i).start;
-                    let inv = a
-                        .clone()
-                        .try_inverse()
-                        .filter(|inv| inv.iter().all(|v| v.is_finite()));
+                    inv.copy_from(a);
+                    let inverted = inv.try_inverse_mut() && inv.iter().all(|v| v.is_finite());
                     // a well-posed fit: the normal matrix is regular and not too ill-conditioned
-                    let ok = inv.as_ref().is_some_and(|inv| {
+                    let ok = inverted && {
                         let na = a.iter().map(|v| v.abs()).fold(0.0, f64::max);
                         let ni = inv.iter().map(|v| v.abs()).fold(0.0, f64::max);
                         na * ni < LS_MAX_CONDITION
-                    });
-                    match inv {
-                        Some(inv) if ok => {
-                            for k in nl.row(i) {
-                                let (dk, wk) = point(k, nl.indices()[k] as usize);
-                                let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
-                                quadratic_basis(&z, p);
-                                let y = &inv * &*p;
-                                let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                                for c in 0..D {
-                                    o[c] = wk * y[c] * hinv;
-                                }
-                                o[D] = wk * (0..D).map(|c| y[D + c]).sum::<f64>() * hinv2;
+                    };
+                    if ok {
+                        for k in nl.row(i) {
+                            let (dk, wk) = point(k, nl.indices()[k] as usize);
+                            let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                            quadratic_basis(&z, p);
+                            inv.mul_to(&*p, y);
+                            let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                            for c in 0..D {
+                                o[c] = wk * y[c] * hinv;
                             }
-                            None
+                            o[D] = wk * (0..D).map(|c| y[D + c]).sum::<f64>() * hinv2;
                         }
-                        _ => {
-                            for k in nl.row(i) {
-                                let j = nl.indices()[k] as usize;
-                                let f = vol[j] * nl.wr2()[k];
-                                let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                                for c in 0..D {
-                                    o[c] = d * f * nl.dx()[k][c];
-                                }
-                                o[D] = 2.0 * d * f;
+                        None
+                    } else {
+                        for k in nl.row(i) {
+                            let j = nl.indices()[k] as usize;
+                            let f = vol[j] * nl.wr2()[k];
+                            let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                            for c in 0..D {
+                                o[c] = d * f * nl.dx()[k][c];
                             }
-                            Some(i)
+                            o[D] = 2.0 * d * f;
                         }
+                        Some(i)
                     }
                 },
             )

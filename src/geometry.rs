@@ -37,6 +37,21 @@ pub fn jitter<const D: usize>(pts: &mut [[f64; D]], amp: f64, seed: u64) {
     }
 }
 
+/// `n` points on Vogel's spiral filling the disk of radius `radius` about `centre`:
+/// `r_k = radius √((k + ½)/n)`, `θ_k = k · golden angle` (`π(3 − √5)`). Every point has about
+/// the same area `πR²/n` (mean spacing `R√(π/n)`) but no two neighbourhoods are alike: a
+/// distribution that is nowhere a lattice.
+pub fn vogel_disk(n: usize, centre: [f64; 2], radius: f64) -> Vec<[f64; 2]> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|k| {
+            let r = radius * ((k as f64 + 0.5) / n as f64).sqrt();
+            let (s, c) = (k as f64 * golden).sin_cos();
+            [centre[0] + r * c, centre[1] + r * s]
+        })
+        .collect()
+}
+
 /// True when `x` lies in the open box `(lo, hi)`.
 pub fn inside<const D: usize>(x: &[f64; D], lo: &[f64; D], hi: &[f64; D]) -> bool {
     (0..D).all(|a| x[a] > lo[a] && x[a] < hi[a])
