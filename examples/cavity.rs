@@ -59,13 +59,14 @@ struct Args {
     /// Implicit weight of the viscous term (0.5 Crank–Nicolson, 0 explicit).
     #[arg(long, default_value_t = 0.5)]
     theta: f64,
-    /// Lagrangian shifting coefficient A (0 disables shifting).
+    /// Lagrangian Fickian shifting coefficient A, added to the default pair repulsion (0
+    /// disables shifting).
     #[arg(long)]
     shift: Option<f64>,
     /// Keep the initial volumes instead of ω = 1/Σw.
     #[arg(long)]
     fixed_volumes: bool,
-    /// CFL number on h/U.
+    /// CFL number on h/U (default 0.2; 0.1 with --motion lagrangian).
     #[arg(long)]
     cfl: Option<f64>,
     /// Linear solver: cholesky, cg, auto.
@@ -119,9 +120,11 @@ fn config(a: &Args) -> CavityConfig {
     if a.fixed_volumes {
         cfg.volumes = VolumeRule::Fixed;
     }
-    if let Some(c) = a.cfl {
-        cfg.limits.cfl = c;
-    }
+    // the Lagrangian cavity blows up at the lid corners at the default CFL factor
+    cfg.limits.cfl = a.cfl.unwrap_or(match a.motion {
+        Motion::Lagrangian => gpm::scene::cavity::LAGRANGIAN_CFL,
+        Motion::Eulerian => cfg.limits.cfl,
+    });
     if let Some(t) = a.steady_tol {
         cfg.scene.steady.tol = t;
     }

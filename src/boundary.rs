@@ -48,14 +48,16 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
-    /// The displacement that brings a point `x` to at least `margin` inside every wall: for a
-    /// point closer than `margin` to a wall, or beyond it by less than `margin` (zero when it
-    /// already is inside the margin, when it is beyond a wall by `margin` or more — a step too
-    /// large, which [`confine`](Self::confine) reports — and for boundaries without walls).
-    /// Moving particles use it as the wall part of their shift, before the projection of the
-    /// step (which therefore acts on the corrected positions): a particle the flow carries
-    /// closer than `margin` to a wall is moved back along the wall normal, and its velocity and
-    /// pressure are re-interpolated to the new position like any shifted particle's.
+    /// The displacement that brings a point `x` back to at least `margin` inside every wall: a
+    /// point at distance `s < margin` from a wall (or beyond it by less than `margin`, `s > −margin`)
+    /// is reflected about the margin plane, to `2 margin − s` (zero when it already is inside
+    /// the margin, when it is beyond a wall by `margin` or more — a step too large, which
+    /// [`confine`](Self::confine) reports — and for boundaries without walls). A reflection
+    /// rather than a stop at the margin: two particles stopped at the margin plane land on the
+    /// same line, and at a corner on the same point. Moving particles use it as the wall part
+    /// of their shift, before the projection of the step (which therefore acts on the
+    /// corrected positions); their velocity into the wall is dropped (see
+    /// `flow::shifting`).
     fn wall_margin_push(&self, x: &[f64; D], margin: f64) -> [f64; D] {
         let _ = (x, margin);
         [0.0; D]
@@ -415,7 +417,7 @@ impl<const D: usize> Boundary<D> for Walls<D> {
             let s = w.distance(x);
             // a point beyond the wall by `margin` or more: not moved (confine reports it)
             if s > -margin && s < margin {
-                d[w.axis] += (margin - s) * w.inward;
+                d[w.axis] += 2.0 * (margin - s) * w.inward;
             }
         }
         d

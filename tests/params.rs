@@ -265,6 +265,16 @@ fn shifting_and_neighbor_config_name_each_bad_value() {
         ..Default::default()
     };
     assert_param(s.validate(), "shifting.max_fraction", 1.5);
+    let s = Shifting {
+        repulsion: 0.7,
+        ..Default::default()
+    };
+    assert_param(s.validate(), "shifting.repulsion", 0.7);
+    let s = Shifting {
+        repulsion_radius: 0.0,
+        ..Default::default()
+    };
+    assert_param(s.validate(), "shifting.repulsion_radius", 0.0);
     let c = |h: f64, skin: f64| NeighborConfig::<2>::new(Weight::WendlandC2, h, skin).validate();
     assert!(c(0.1, 0.0).is_ok());
     assert_param(c(-0.1, 0.0), "h", -0.1);

@@ -29,7 +29,7 @@ use crate::error::{Error, InputError};
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
 use crate::particles::Particles;
-use crate::projection::{ProjectionParams, ProjectionStep, StepReport};
+use crate::projection::{ProjectionParams, ProjectionStep, Scheme, StepReport};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -254,6 +254,15 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     stale: bool,
     /// The advection velocity of a Lagrangian step (scratch).
     advect_u: Vec<[f64; D]>,
+    /// Lagrangian frame: each fluid particle's material acceleration over the last step,
+    /// `(uⁿ⁺¹ − ũⁿ)/Δt` with `ũⁿ` the velocity carried to the moved position (empty before the
+    /// first step); the next move adds `Δt²/2 a`.
+    material_accel: Vec<[f64; D]>,
+    /// Lagrangian frame, incremental schemes: `∇pⁿ/ρ` at the end of the last step, on the
+    /// configuration the particles had then (empty before the first step).
+    old_pressure_grad: Vec<[f64; D]>,
+    /// The explicit acceleration handed to the predictor (scratch).
+    extra_accel: Vec<[f64; D]>,
     convection: Convection<D>,
     /// Kinetic energy after the last step (for `guard.energy_growth`).
     prev_energy: Option<f64>,
@@ -317,6 +326,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             shift_scratch: Default::default(),
             stale: false,
             advect_u: Vec::new(),
+            material_accel: Vec::new(),
+            old_pressure_grad: Vec::new(),
+            extra_accel: Vec::new(),
             convection: Convection::new(),
             prev_energy: None,
             pair_weights: Default::default(),
@@ -488,6 +500,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .guard
             .check_dt(self.steps + 1, dt, bound_limit, bound)?;
         let lagrangian = self.plan.has(Stage::Advection);
+        let trapezoid = lagrangian && self.params.projection.scheme != Scheme::NonIncremental;
         let mut advect_seconds = 0.0;
         let mut moved = shifting::Moved::default();
         if lagrangian {
@@ -503,6 +516,12 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 .filter(|_| self.plan.has(Stage::Shifting));
             let mut u = std::mem::take(&mut self.advect_u);
             u.clone_from(&self.particles.u);
+            let ls = (self.params.projection.gradient == GradientKind::LeastSquares).then(|| {
+                let p = &self.particles;
+                let ghosts = self.boundary.has_ghosts();
+                self.projection
+                    .least_squares(&self.nl, &p.vol, &p.x, &p.role, ghosts)
+            });
             let res = shifting::advance_particles(
                 sh.as_ref(),
                 self.params.dx,
@@ -510,7 +529,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 WALL_MARGIN * self.params.dx,
                 &mut self.particles,
                 &mut u,
+                &self.material_accel,
                 &self.nl,
+                ls,
                 &self.boundary,
                 &mut self.shift_scratch,
             );
@@ -521,6 +542,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             let t2 = Instant::now();
             rebuilt |= self.refresh()?;
             neighbors_seconds += t2.elapsed().as_secs_f64();
+            // ũⁿ, for the material acceleration after the projection
+            self.material_accel.clone_from(&self.particles.u);
         }
         let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
@@ -546,6 +569,31 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 &mut self.work,
             );
             Some(&self.work[..])
+        } else if trapezoid && !self.old_pressure_grad.is_empty() {
+            // the pressure gradient along the trajectory by the trapezoidal rule,
+            // −½(∇pⁿ|xⁿ + ∇pⁿ|xⁿ⁺¹)/ρ: the predictor applies the second term in full, this
+            // adds ½(∇pⁿ|xⁿ⁺¹ − ∇pⁿ|xⁿ)/ρ (with −∇p at the new positions alone, the velocity
+            // of a particle that crosses the pressure field is first order in time)
+            let mut g = std::mem::take(&mut self.extra_accel);
+            self.projection.pressure_gradient_into(
+                &mut self.particles,
+                &self.nl,
+                &self.boundary,
+                &self.params.projection,
+                &mut g,
+            );
+            for (i, gi) in g.iter_mut().enumerate() {
+                // fluid particles keep their index; ghosts are regenerated
+                let old = match self.old_pressure_grad.get(i) {
+                    Some(o) if self.particles.role[i].is_fluid() => *o,
+                    _ => *gi,
+                };
+                for k in 0..D {
+                    gi[k] = 0.5 * (gi[k] - old[k]);
+                }
+            }
+            self.extra_accel = g;
+            Some(&self.extra_accel[..])
         } else {
             None
         };
@@ -569,6 +617,27 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &u_star,
         )?;
         pred.add_to(&mut report);
+        if trapezoid {
+            let mut g = std::mem::take(&mut self.old_pressure_grad);
+            self.projection.pressure_gradient_into(
+                &mut self.particles,
+                &self.nl,
+                &self.boundary,
+                &self.params.projection,
+                &mut g,
+            );
+            self.old_pressure_grad = g;
+        }
+        if lagrangian {
+            let p = &self.particles;
+            for (i, a) in self.material_accel.iter_mut().enumerate() {
+                *a = if p.role[i].is_fluid() {
+                    std::array::from_fn(|k| (p.u[i][k] - a[k]) / dt)
+                } else {
+                    [0.0; D]
+                };
+            }
+        }
         let max_shift = moved.max_shift;
         self.time += dt;
         if let Some(t) = land {

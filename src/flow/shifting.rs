@@ -1,11 +1,21 @@
-//! Particle motion in the Lagrangian frame: advection with the projected velocity, Fickian
-//! shifting, and the wall margin.
+//! Particle motion in the Lagrangian frame: advection with the projected velocity, the shift
+//! that keeps the distribution regular, and the wall margin.
 //!
-//! `δx_i = −A h |u_i| Δt ∇C_i` with `∇C_i = Σ_j ω_j (1 + R (w_h(r_ij)/w_h(Δx))^n) ∇_i w_h(r_ij)`
-//! (Skillen et al. 2013's scaling of Lind et al. 2012's law, with Lind's tensile correction
-//! `R = 0.2`, `n = 4`), limited to `max_fraction · Δx`; velocity and pressure are
-//! corrected to the new position by a first-order Taylor expansion (Xu et al. 2009),
-//! `u_i += (δx_i·∇h) u_i`, `p_i += δx_i·∇h p_i`, with the gradients before the shift.
+//! The move is `x += Δt u + Δt²/2 a + δ` (`a` the material acceleration of the last step) with
+//! the shift `δ_i` the sum of
+//! - the **pair repulsion** (default): `κ Σ_j (r_c − r_ij)₊ (x_i − x_j)/r_ij`, `r_c = Δx`: a
+//!   pair closer than the spacing moves apart by `2κ` of the overlap; a distribution without
+//!   such pairs is left alone, so the shift adds no error where the flow keeps the particles
+//!   apart;
+//! - the **Fickian shift** (off by default): `−A h |u_i| Δt ∇C_i` with
+//!   `∇C_i = Σ_j ω_j (1 + R (w_h(r_ij)/w_h(Δx))^n) ∇_i w_h(r_ij)` (Skillen et al. 2013's
+//!   scaling of Lind et al. 2012's law, with Lind's tensile correction `R = 0.2`, `n = 4`),
+//!
+//! limited to `max_fraction · Δx`. Velocity and pressure are corrected to the shifted position
+//! by a Taylor expansion (Xu et al. 2009) with the derivatives before the shift: second order,
+//! `u += δ·∇u + ½ δᵀ(∇∇u)δ`, with the least-squares operators (the second derivatives as the
+//! least-squares gradients of the first, except in rows that see a wall ghost), first order
+//! with the GPM gradient otherwise.
 
 use crate::boundary::Boundary;
 use crate::error::{Error, InputError};
@@ -20,7 +30,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Shifting {
-    /// `A` in `δx = −A h |u| Δt ∇C` (default 2).
+    /// `A` in `δx = −A h |u| Δt ∇C` (default 0: off; Lind et al. use 1–6).
     pub coefficient: f64,
     /// Largest shift per step as a fraction of the particle spacing (default 0.2).
     pub max_fraction: f64,
@@ -37,17 +47,32 @@ pub struct Shifting {
     pub tensile: f64,
     /// `n` of the tensile correction (default 4).
     pub tensile_exponent: i32,
+    /// `κ` of the pair repulsion: every pair closer than `repulsion_radius · Δx` pushes both
+    /// particles apart by `κ (r_c − r_ij)` each (default 0.25). A distribution whose pairs
+    /// are all at least `r_c` apart (the square and the hexagonal lattice at `r_c ≤ Δx`) is left
+    /// alone; a flow that compresses the distribution along one axis (a stagnation point),
+    /// which the concentration gradient cannot see, is answered by the pairs it brings close.
+    pub repulsion: f64,
+    /// `r_c/Δx` of the pair repulsion (default 1).
+    pub repulsion_radius: f64,
 }
 
 impl Default for Shifting {
+    /// The pair repulsion alone (`κ = 0.25`, `r_c = Δx`), no Fickian term: measured on the
+    /// Lagrangian Taylor–Green vortex (n = 50, t = 2), Fickian shifting (`A = 2`) blows up at
+    /// t ≈ 1.3 — its own step is unstable at that strength (particles jump past each other:
+    /// minimum spacing 0.07Δx) and weaker ones cannot follow the strain — while the repulsion
+    /// keeps every pair above 0.5Δx to the end with L1 error 0.76 %.
     fn default() -> Self {
         Shifting {
-            coefficient: 2.0,
+            coefficient: 0.0,
             max_fraction: 0.2,
             correct: true,
             global_speed: true,
             tensile: 0.2,
             tensile_exponent: 4,
+            repulsion: 0.25,
+            repulsion_radius: 1.0,
         }
     }
 }
@@ -77,6 +102,20 @@ impl Shifting {
                 "must be non-negative and finite",
             ));
         }
+        if !(0.0..=0.5).contains(&self.repulsion) {
+            return Err(InputError::parameter(
+                "shifting.repulsion",
+                self.repulsion,
+                "must be in [0, 0.5] (a pair closer than r_c moves apart by 2κ of the overlap)",
+            ));
+        }
+        if !(self.repulsion_radius > 0.0 && self.repulsion_radius <= 2.0) {
+            return Err(InputError::parameter(
+                "shifting.repulsion_radius",
+                self.repulsion_radius,
+                "must be in (0, 2]",
+            ));
+        }
         if !(1..=16).contains(&self.tensile_exponent) {
             return Err(InputError::parameter(
                 "shifting.tensile_exponent",
@@ -88,6 +127,13 @@ impl Shifting {
     }
 }
 
+/// The least-squares operators of the configuration before the move: the wall variant for
+/// velocities and the plain variant for pressures.
+pub(crate) type LsPair<'a, const D: usize> = (
+    &'a crate::consistent::LsOperators<D>,
+    &'a crate::consistent::LsOperators<D>,
+);
+
 /// Scratch of [`shift`]: the shifts and the gradients of the correction.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct ShiftScratch<const D: usize> {
@@ -95,6 +141,14 @@ pub(crate) struct ShiftScratch<const D: usize> {
     wall: Vec<[f64; D]>,
     grad: Vec<[[f64; D]; D]>,
     gp: Vec<[f64; D]>,
+    /// `hess[i][a][c][b] = ∂_b ∂_c u_a` (least-squares gradients of the gradients).
+    hess: Vec<[[[f64; D]; D]; D]>,
+    /// `hp[i][c][b] = ∂_b ∂_c p`.
+    hp: Vec<[[f64; D]; D]>,
+    field: Vec<f64>,
+    field_grad: Vec<[f64; D]>,
+    /// Rows with a ghost neighbour (no second-order term there).
+    near_wall: Vec<bool>,
 }
 
 /// What [`advance_particles`] did.
@@ -106,8 +160,10 @@ pub(crate) struct Moved {
     pub wall_pushes: usize,
 }
 
-/// Moves the fluid particles of `p` with the velocity `u` (the predictor's `u*`: the
-/// projection then runs on the moved configuration), `x += Δt u`, plus a shift `δ_i`: the
+/// Moves the fluid particles of `p` with the velocity `u` and the material acceleration
+/// `accel` of the last step (empty on the first), `x += Δt u + Δt²/2 a` (second order in time:
+/// with `x += Δt u` alone the trajectories, and with them the velocity sampled along them, are
+/// first order), plus a shift `δ_i`: the
 /// Fickian shift of `sh` (when given) computed at the configuration of `nl`, and the wall part
 /// [`Boundary::wall_margin_push`] that keeps every particle at least `margin` inside the walls.
 /// `u` and the pressure are corrected to the shifted position by a first-order Taylor
@@ -123,7 +179,9 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     margin: f64,
     p: &mut Particles<D>,
     u: &mut [[f64; D]],
+    accel: &[[f64; D]],
     nl: &NeighborList<D>,
+    ls: Option<LsPair<'_, D>>,
     boundary: &B,
     s: &mut ShiftScratch<D>,
 ) -> Result<Moved, Error> {
@@ -172,6 +230,18 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             };
             let f = -sh.coefficient * h * speed * dt;
             let mut d: [f64; D] = gc.map(|g| f * g);
+            if sh.repulsion > 0.0 {
+                let rc = sh.repulsion_radius * dx;
+                for k in nl.row(i) {
+                    let r = nl.r2()[k].sqrt();
+                    if r < rc && r > 0.0 {
+                        let c = -sh.repulsion * (rc - r) / r;
+                        for a in 0..D {
+                            d[a] += c * nl.dx()[k][a];
+                        }
+                    }
+                }
+            }
             let m = norm2(&d).sqrt();
             let lim = sh.max_fraction * dx;
             if m > lim {
@@ -181,6 +251,11 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         });
     }
     let correct_fick = sh.is_some_and(|sh| sh.correct);
+    // the advection displacement Δt u + Δt²/2 a
+    let half_dt2 = 0.5 * dt * dt;
+    let advect = |u: &[[f64; D]], i: usize, a: usize| {
+        dt * u[i][a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
+    };
     // wall part, at the advected and Fick-shifted position
     s.wall.resize(n, [0.0; D]);
     let mut wall_pushes = 0;
@@ -189,7 +264,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         if !p.role[i].is_fluid() {
             continue;
         }
-        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + dt * u[i][a] + s.shift[i][a]);
+        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + advect(u, i, a) + s.shift[i][a]);
         let w = boundary.wall_margin_push(&x, margin);
         if w.iter().any(|&v| v != 0.0) {
             wall_pushes += 1;
@@ -203,30 +278,68 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         })
         .fold(0.0, f64::max);
     if correct_fick || wall_pushes > 0 {
+        // the gradients at the configuration before the move
         // Taylor correction of u and p to the shifted position (gradients before the move)
         s.grad.resize(n, [[0.0; D]; D]);
-        grad_vec_into(nl, &p.vol, u, &mut s.grad);
         s.gp.resize(n, [0.0; D]);
-        grad_diff_into(nl, &p.vol, &p.p, &mut s.gp);
+        if boundary.has_ghosts() {
+            boundary.fill_scalar(&p.role, &mut p.p);
+        }
+        match ls {
+            Some((lu, lp)) => {
+                lu.grad_vec_into(nl, u, &mut s.grad);
+                lp.grad_into(nl, &p.p, &mut s.gp);
+                second_derivatives(nl, lp, p, s);
+            }
+            None => {
+                grad_vec_into(nl, &p.vol, u, &mut s.grad);
+                grad_diff_into(nl, &p.vol, &p.p, &mut s.gp);
+                s.hess.clear();
+            }
+        }
     }
     for i in 0..n {
         if !p.role[i].is_fluid() {
             continue;
         }
-        let d: [f64; D] = if correct_fick {
-            std::array::from_fn(|a| s.shift[i][a] + s.wall[i][a])
-        } else {
-            s.wall[i]
-        };
-        let ui = u[i];
+        // the velocity follows the shift by its Taylor expansion; the wall part is a stop, not
+        // a displacement within the flow: the particle keeps its velocity except the part
+        // into the wall (extrapolating it to the pushed position instead, with the wall's
+        // value a fraction of Δx away, multiplies that part by (s + δ)/s every step — the
+        // pushed particle then runs into the wall ever faster)
+        let d: [f64; D] = if correct_fick { s.shift[i] } else { [0.0; D] };
+        let w = s.wall[i];
         for a in 0..D {
-            p.x[i][a] += dt * ui[a] + s.shift[i][a] + s.wall[i][a];
+            p.x[i][a] += advect(u, i, a) + s.shift[i][a] + w[a];
         }
         if d.iter().any(|&v| v != 0.0) {
+            // u(x + δ) = u + δ·∇u + ½ δᵀ(∇∇u)δ: with the first-order term alone, every shift
+            // diffuses the velocity by ½|δ|²∇²u (a decay error growing with the step count)
+            let second = !s.hess.is_empty() && !s.near_wall[i];
+            let quad = |h: &[[f64; D]; D]| -> f64 {
+                0.5 * (0..D)
+                    .map(|c| d[c] * (0..D).map(|b| h[c][b] * d[b]).sum::<f64>())
+                    .sum::<f64>()
+            };
             for a in 0..D {
                 u[i][a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
+                if second {
+                    u[i][a] += quad(&s.hess[i][a]);
+                }
             }
             p.p[i] += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
+            if second {
+                p.p[i] += quad(&s.hp[i]);
+            }
+        }
+        for a in 0..D {
+            if w[a] != 0.0 {
+                // the pressure (a Neumann field at the wall) is expanded to the new position
+                p.p[i] += s.gp[i][a] * w[a];
+                if u[i][a] * w[a] < 0.0 {
+                    u[i][a] = 0.0;
+                }
+            }
         }
     }
     boundary.confine(p)?;
@@ -234,4 +347,47 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         max_shift,
         wall_pushes,
     })
+}
+
+/// The second derivatives of the velocity and the pressure for the Taylor correction: the
+/// least-squares gradients (plain variant `lp`) of the first derivatives in `s.grad` and
+/// `s.gp`, and the rows that see a ghost (whose derivatives' ghost values are undefined: they
+/// keep the first-order correction).
+fn second_derivatives<const D: usize>(
+    nl: &NeighborList<D>,
+    lp: &crate::consistent::LsOperators<D>,
+    p: &Particles<D>,
+    s: &mut ShiftScratch<D>,
+) {
+    let n = p.len();
+    s.hess.clear();
+    s.hess.resize(n, [[[0.0; D]; D]; D]);
+    s.hp.clear();
+    s.hp.resize(n, [[0.0; D]; D]);
+    s.field.resize(n, 0.0);
+    s.field_grad.resize(n, [0.0; D]);
+    for a in 0..=D {
+        for c in 0..D {
+            for (f, i) in s.field.iter_mut().zip(0..n) {
+                *f = if a < D { s.grad[i][a][c] } else { s.gp[i][c] };
+            }
+            lp.grad_into(nl, &s.field, &mut s.field_grad);
+            for i in 0..n {
+                if a < D {
+                    s.hess[i][a][c] = s.field_grad[i];
+                } else {
+                    s.hp[i][c] = s.field_grad[i];
+                }
+            }
+        }
+    }
+    s.near_wall.clear();
+    s.near_wall.extend((0..n).map(|i| {
+        nl.row(i).any(|k| {
+            matches!(
+                p.role[nl.indices()[k] as usize],
+                crate::particles::Role::Ghost { .. }
+            )
+        })
+    }));
 }

@@ -539,6 +539,36 @@ impl<const D: usize> ProjectionStep<D> {
         r
     }
 
+    /// `∇p/ρ` of the particles' pressure on the configuration of `nl`, with the predictor's
+    /// gradient (`params.gradient`; pressure ghosts refilled first), into `out` (every
+    /// particle). A Lagrangian driver evaluates it at both ends of a step to apply the pressure
+    /// gradient with the trapezoidal rule along the trajectories.
+    pub fn pressure_gradient_into(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        out: &mut Vec<[f64; D]>,
+    ) {
+        let n = particles.len();
+        if boundary.has_ghosts() {
+            boundary.fill_scalar(&particles.role, &mut particles.p);
+        }
+        out.clear();
+        out.resize(n, [0.0; D]);
+        self.gradient.kind = params.gradient;
+        self.gradient.share_walls = !boundary.has_ghosts();
+        self.gradient.prepare(nl, &particles.vol);
+        self.gradient
+            .apply_into(nl, &particles.vol, &particles.p, out);
+        for g in out.iter_mut() {
+            for v in g.iter_mut() {
+                *v /= params.rho;
+            }
+        }
+    }
+
     /// The least-squares coefficients of the wall variant (velocities) for the configuration
     /// of `nl`, brought up to date here; the predictor's viscous Laplacian and the source read
     /// the same cache, so a driver's convective term computed from it costs no second build.
@@ -553,6 +583,29 @@ impl<const D: usize> ProjectionStep<D> {
             .ls_walls
             .update(nl, vol, nl.len(), Some((x, role)));
         &self.gradient.ls_walls
+    }
+
+    /// The least-squares coefficients for the configuration of `nl`, brought up to date: the
+    /// wall variant (velocities, as [`Self::velocity_least_squares`]) and the plain variant
+    /// (pressures, whose ghosts carry the Neumann extension).
+    pub fn least_squares(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        x: &[[f64; D]],
+        role: &[crate::particles::Role],
+        has_ghosts: bool,
+    ) -> (
+        &crate::consistent::LsOperators<D>,
+        &crate::consistent::LsOperators<D>,
+    ) {
+        let n = nl.len();
+        self.gradient.share_walls = !has_ghosts;
+        self.gradient.ls_walls.update(nl, vol, n, Some((x, role)));
+        if has_ghosts {
+            self.gradient.ls.update(nl, vol, n, None);
+        }
+        (&self.gradient.ls_walls, self.gradient.plain())
     }
 
     /// Connectivity (checked against `params.allowed_floating`) and `c0`, reused while the pair
@@ -718,6 +771,7 @@ impl<const D: usize> ProjectionStep<D> {
             let gp = &mut self.work_vec2;
             gp.resize(n, [0.0; D]);
             self.gradient.kind = params.gradient;
+            self.gradient.share_walls = !boundary.has_ghosts();
             self.gradient.prepare(nl, vol);
             self.gradient.apply_into(nl, vol, &particles.p, gp);
             for (a, g) in acc.iter_mut().zip(gp.iter()) {
@@ -870,13 +924,15 @@ impl<const D: usize> ProjectionStep<D> {
             ..Default::default()
         });
 
-        // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band)
+        // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band, except for the
+        //    least-squares divergence)
         let t = Instant::now();
         let f = &mut self.work_vec2;
         stages::source_field(
             role,
             boundary,
             params.source_ghosts,
+            plan.source,
             -rho / dt,
             &self.u_star,
             f,
@@ -921,6 +977,7 @@ impl<const D: usize> ProjectionStep<D> {
         let gphi = &mut self.work_vec;
         gphi.resize(n, [0.0; D]);
         self.gradient.kind = params.gradient;
+        self.gradient.share_walls = !boundary.has_ghosts();
         self.gradient.prepare(nl, vol);
         self.gradient.apply_into(nl, vol, &self.phi, gphi);
         if plan.rotational {

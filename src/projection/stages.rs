@@ -27,21 +27,26 @@ use crate::particles::Role;
 use rayon::prelude::*;
 
 /// The source field `f_i = scale · v_i` (the projection uses `scale = −ρ/Δt`, `v = u*`) on the
-/// fluid and the ghosts, `f_i = 0` on the Dirichlet band; when the boundary has ghosts and
+/// fluid and the ghosts, and on the Dirichlet band `f_i = 0` (the paper's `f̂`, which the
+/// adjointness of the sum-form pair needs) or, with the least-squares divergence (`kind`), the
+/// band's own `scale · v_i`: a consistent divergence of the field the particles carry (zeroing
+/// the band would make a divergence-free field look divergent within `h` of it); when the boundary has ghosts and
 /// `ghost_rule` is [`VectorKind::Mirror`], the ghosts are refilled by the mirror rule (else they
 /// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
 pub fn source_field<const D: usize>(
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
+    kind: SourceKind,
     scale: f64,
     v: &[[f64; D]],
     f: &mut Vec<[f64; D]>,
 ) {
     let n = role.len();
     f.resize(n, [0.0; D]);
+    let keep_band = kind == SourceKind::LeastSquares;
     for i in 0..n {
-        f[i] = if matches!(role[i], Role::Dirichlet) {
+        f[i] = if !keep_band && matches!(role[i], Role::Dirichlet) {
             [0.0; D]
         } else {
             v[i].map(|x| scale * x)
@@ -168,7 +173,7 @@ pub fn measure_divergence<const D: usize>(
     work2: &mut Vec<[f64; D]>,
     div: &mut Vec<f64>,
 ) -> f64 {
-    source_field(role, boundary, ghost_rule, 1.0, v, work);
+    source_field(role, boundary, ghost_rule, kind, 1.0, v, work);
     divergence_into(
         nl, vol, x, role, boundary, ghost_rule, kind, ops, work, work2, div,
     );

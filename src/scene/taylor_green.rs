@@ -8,7 +8,7 @@ use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParam
 use crate::boundary::PeriodicBox;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
-use crate::geometry::lattice;
+use crate::geometry::{jitter, lattice};
 use crate::neighbors::Periodicity;
 use crate::particles::{Particles, Role};
 use serde::{Deserialize, Serialize};
@@ -23,13 +23,45 @@ use std::time::Instant;
 pub struct TaylorGreen {
     /// Velocity amplitude `U`.
     pub amplitude: f64,
+    /// Initial displacement of each particle from its lattice site, uniform in
+    /// `[−jitter Δx, jitter Δx]` per coordinate (at most 0.45). Default (`null`):
+    /// [`LAGRANGIAN_JITTER`] for Lagrangian runs, 0 for Eulerian ones. The lattice is
+    /// symmetric about the vortex's stagnation points, so without it a Lagrangian run deforms
+    /// the rows there symmetrically (they close up along the compressive axis and open along
+    /// the stretching one) and no shifting law that is itself symmetric can undo that: the
+    /// pair repulsion cancels on every particle of a symmetrically compressed row.
+    pub jitter: Option<f64>,
+    /// Seed of the jitter (ChaCha8; default 7).
+    pub seed: u64,
 }
 
-super::config_fields!(TaylorGreen { amplitude });
+super::config_fields!(TaylorGreen {
+    amplitude,
+    jitter,
+    seed
+});
 
 impl Default for TaylorGreen {
     fn default() -> Self {
-        TaylorGreen { amplitude: 1.0 }
+        TaylorGreen {
+            amplitude: 1.0,
+            jitter: None,
+            seed: 7,
+        }
+    }
+}
+
+/// The initial jitter of a Lagrangian run when none is given, in particle spacings.
+pub const LAGRANGIAN_JITTER: f64 = 0.05;
+
+impl TaylorGreen {
+    /// The jitter a run in `motion` uses: the given one, or [`LAGRANGIAN_JITTER`] for
+    /// Lagrangian runs and 0 for Eulerian ones.
+    pub fn jitter_for(&self, motion: crate::flow::Motion) -> f64 {
+        self.jitter.unwrap_or(match motion {
+            crate::flow::Motion::Lagrangian => LAGRANGIAN_JITTER,
+            crate::flow::Motion::Eulerian => 0.0,
+        })
     }
 }
 
@@ -55,6 +87,13 @@ impl SceneParams for TaylorGreen {
                 reason: "must be finite and non-zero".into(),
             });
         }
+        if let Some(j) = self.jitter.filter(|j| !(0.0..=0.45).contains(j)) {
+            return Err(InputError::parameter(
+                "jitter",
+                j,
+                "the jitter must be in [0, 0.45] particle spacings",
+            ));
+        }
         Ok(())
     }
 }
@@ -75,7 +114,13 @@ pub fn build(cfg: &TaylorGreenConfig) -> Result<Simulation<2, PeriodicBox<2>>, E
     let dx = 1.0 / cfg.n as f64;
     let amplitude = cfg.scene.amplitude;
     let mut p = Particles::<2>::new();
-    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+    let mut xs = lattice([0.0, 0.0], [1.0, 1.0], dx);
+    jitter(
+        &mut xs,
+        cfg.scene.jitter_for(cfg.motion) * dx,
+        cfg.scene.seed,
+    );
+    for x in xs {
         let (u, pr) = exact(cfg.re, amplitude, &x, 0.0);
         p.push(x, u, pr, dx * dx, Role::Fluid);
     }
