@@ -333,3 +333,125 @@ fn lagrangian_taylor_green_is_second_order_along_the_trajectories() {
     assert!(res.errors.l1_velocity_error < 0.005, "{:?}", res.errors);
     assert!(res.errors.linf_decay_error < 0.002, "{:?}", res.errors);
 }
+
+/// A Taylor–Green box of `n × n` particles (amplitude `u0`, periodic) with every particle
+/// within `hole` of particle `k` removed, so that `k` has no neighbour within `h`; returns the
+/// particles and the index `k` has after the removal.
+fn taylor_green_with_a_planted_particle(
+    n: usize,
+    u0: f64,
+    k: usize,
+    hole: f64,
+) -> (Particles<2>, usize) {
+    use gpm::geometry::lattice;
+    let dx = 1.0 / n as f64;
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let x = lattice([0.0, 0.0], [1.0, 1.0], dx);
+    let xk = x[k];
+    let mut p = Particles::<2>::new();
+    let mut planted = usize::MAX;
+    for (i, xi) in x.iter().enumerate() {
+        let d = ((xi[0] - xk[0]).powi(2) + (xi[1] - xk[1]).powi(2)).sqrt();
+        if i != k && d < hole {
+            continue;
+        }
+        if i == k {
+            planted = p.len();
+        }
+        let u = [
+            u0 * (two_pi * xi[0]).sin() * (two_pi * xi[1]).cos(),
+            -u0 * (two_pi * xi[0]).cos() * (two_pi * xi[1]).sin(),
+        ];
+        p.push(*xi, u, 0.0, dx * dx, Role::Fluid);
+    }
+    (p, planted)
+}
+
+/// A fluid particle planted alone in a hole wider than `h` (no neighbour: its own component,
+/// outside the one floating component a periodic box expects) is handled by the policy the
+/// configuration names: `float` solves it as its own floating component — `φ = 0`, no pressure
+/// gradient, so it moves ballistically at its own velocity — and counts it in every step;
+/// `fail` stops the first step naming it.
+#[test]
+fn a_planted_isolated_particle_is_handled_by_the_chosen_policy_and_counted() {
+    use gpm::boundary::PeriodicBox;
+    use gpm::flow::Simulation;
+    use gpm::kernel::Weight;
+    use gpm::neighbors::{NeighborConfig, Periodicity};
+    use gpm::projection::Disconnected;
+
+    let n = 24;
+    let dx = 1.0 / n as f64;
+    let h = 3.0 * dx;
+    let u0 = 0.2;
+    // lattice point (9.5, 9.5) Δx, where the vortex moves it diagonally; the hole (radius
+    // 2h = 6Δx) stays inside the box, so the periodic images do not reach it either
+    let (particles, k) = taylor_green_with_a_planted_particle(n, u0, 9 * n + 9, 2.0 * h);
+    let x0 = particles.x[k];
+    let v0 = particles.u[k];
+    assert!(v0[0].abs() > 0.05 && v0[1].abs() > 0.05, "{v0:?}");
+    let run = |policy: Option<Disconnected>| {
+        let cfg = TaylorGreenConfig::default().with(|c| {
+            c.n = n;
+            c.re = 100.0;
+            c.motion = Motion::Lagrangian;
+            c.disconnected = policy;
+        });
+        let params = cfg.flow_params::<2>(u0);
+        let periodic = Periodicity::all([0.0, 0.0], [1.0, 1.0]);
+        let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.3);
+        let mut sim = Simulation::new(particles.clone(), PeriodicBox { periodic }, config, params)
+            .expect("the set-up is valid");
+        (0..3)
+            .map(|_| {
+                sim.advance()
+                    .map(|r| (r, sim.particles.x[k], sim.particles.u[k]))
+            })
+            .collect::<Vec<_>>()
+    };
+
+    // the default for moving particles is `float`: every step counts the particle
+    let mut t = 0.0;
+    for step in run(None) {
+        let (rep, x, u) = step.expect("the float policy runs on");
+        let c = rep.projection.connectivity;
+        assert_eq!(
+            (c.isolated, rep.projection.disconnected),
+            (1, 1),
+            "step {}",
+            rep.step
+        );
+        assert_eq!(c.floating, 2, "the bulk and the planted particle");
+        t += rep.projection.dt;
+        // ballistic: its velocity is untouched and it moved by t·u (no neighbour, no force)
+        for a in 0..2 {
+            assert!(
+                (u[a] - v0[a]).abs() < 1e-12,
+                "step {}: u {u:?} != {v0:?}",
+                rep.step
+            );
+            let moved = x0[a] + t * v0[a];
+            assert!(
+                (x[a] - moved).abs() < 1e-12,
+                "step {}: x {x:?} != {moved}",
+                rep.step
+            );
+        }
+    }
+    assert!(t > 0.0);
+
+    // `fail` names it
+    let first = run(Some(Disconnected::Fail))
+        .into_iter()
+        .next()
+        .expect("one step");
+    let err = first.expect_err("the fail policy stops");
+    match &err {
+        gpm::Error::Connectivity(e) => {
+            assert_eq!(e.offending, vec![k]);
+            assert_eq!(e.isolated, 1);
+        }
+        other => panic!("expected a connectivity error, got {other}"),
+    }
+    assert!(err.to_string().contains(&k.to_string()), "{err}");
+}

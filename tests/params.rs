@@ -363,3 +363,32 @@ fn pressure_smoothing_outside_zero_one_is_named() {
     let c = gpm::projection::ProjectionParams::<2>::new(0.01).with_consistent_operators();
     assert!(c.validate().is_ok());
 }
+
+/// The `disconnected` key: `null` resolves by the frame (`float` for moving particles, `fail`
+/// for fixed ones), an explicit value wins, and a bad value is named by its key.
+#[test]
+fn disconnected_policy_key_resolves_by_the_frame() {
+    use gpm::projection::Disconnected;
+    use gpm::scene::config_from_json;
+    let policy = |json: &str| {
+        let cfg: TaylorGreenConfig = config_from_json(json).expect(json);
+        cfg.flow_params::<2>(1.0).projection.disconnected
+    };
+    assert_eq!(policy(r#"{"motion": "lagrangian"}"#), Disconnected::Float);
+    assert_eq!(policy(r#"{"motion": "eulerian"}"#), Disconnected::Fail);
+    assert_eq!(
+        policy(r#"{"motion": "lagrangian", "disconnected": "fail"}"#),
+        Disconnected::Fail
+    );
+    assert_eq!(policy(r#"{"disconnected": "float"}"#), Disconnected::Float);
+    match config_from_json::<TaylorGreenConfig>(r#"{"disconnected": "drop"}"#) {
+        Err(gpm::error::InputError::Config { key, reason }) => {
+            assert_eq!(key, "disconnected");
+            assert!(
+                reason.contains("fail") && reason.contains("float"),
+                "{reason}"
+            );
+        }
+        other => panic!("expected a configuration error, got {other:?}"),
+    }
+}

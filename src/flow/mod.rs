@@ -346,7 +346,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         if self.plan.has(Stage::Volumes) {
             let v = number_density_volumes(&self.nl);
             for (i, r) in self.particles.role.iter().enumerate() {
-                if r.is_fluid() {
+                // a particle without neighbours (number density 0) keeps the volume it had: it
+                // carries its mass ballistically until it rejoins (`Disconnected::Float`)
+                if r.is_fluid() && v[i].is_finite() {
                     self.particles.vol[i] = v[i];
                 }
             }
@@ -674,8 +676,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
 
 /// The particle arrays agree in length with each other and the neighbour list, positions,
 /// velocities and pressures of the fluid particles are finite, and their volumes positive and
-/// finite (except particles without neighbours, whose number-density volume is infinite and
-/// which the connectivity check reports). Checked before every step, so that a bad value set
+/// finite (except particles without neighbours, whose number-density volume is infinite unless
+/// the flow kept their last one, and which the connectivity check reports). Checked before every step, so that a bad value set
 /// by the caller is named at its particle rather than surfacing later as a failed solve.
 fn check_state<const D: usize>(p: &Particles<D>, nl: &NeighborList<D>) -> Result<(), InputError> {
     let n = p.x.len();

@@ -136,6 +136,26 @@ impl std::fmt::Display for SourceKind {
     }
 }
 
+/// The policy for fluid cut off from the rest: the components beyond
+/// [`ProjectionParams::allowed_floating`] and the isolated particles (no neighbour within `h`).
+///
+/// The Poisson problem on such a component is a pure Neumann one: `φ` is fixed up to a constant
+/// there, which [`crate::poisson::PoissonSolver`] sets to mean zero (an isolated particle gets
+/// `φ = 0` and its source is dropped). The pressure gradient inside the component is then
+/// unique; an isolated particle feels none, so it moves ballistically (body force and its own
+/// velocity) until it rejoins.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Disconnected {
+    /// An error naming the particles ([`crate::error::ConnectivityError`]): for fixed
+    /// particles a disconnected set-up is a mistake.
+    #[default]
+    Fail,
+    /// Each such component is its own floating component (see above); the step reports how
+    /// many particles the policy acted on ([`StepReport::disconnected`]).
+    Float,
+}
+
 /// Physical and numerical parameters of the projection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ProjectionParams<const D: usize> {
@@ -167,6 +187,12 @@ pub struct ProjectionParams<const D: usize> {
     /// by walls, 0 when a Dirichlet band touches every part of the fluid. More are reported as a
     /// connectivity failure.
     pub allowed_floating: usize,
+    /// What the projection does with fluid cut off from the rest beyond `allowed_floating`
+    /// (an isolated particle, a cluster that lost its path to the Dirichlet band or drifted
+    /// away from the bulk): fail naming the particles (default) or solve each such component
+    /// as its own floating one ([`Disconnected`]). Either way the step's connectivity counts
+    /// and [`StepReport::disconnected`] record it.
+    pub disconnected: Disconnected,
     /// The gradient for `∇pⁿ` in the predictor and `∇φ` in the correction: the difference
     /// gradient `∇h` (default; exactly adjoint to the source's `∇̂h·`, so Theorem 4.5 applies)
     /// or the renormalised `∇ᶜ = B∇h` (first order on disordered particles; not adjoint; its
@@ -205,6 +231,7 @@ impl<const D: usize> ProjectionParams<D> {
             reuse_diagnostics: true,
             solve: SolveParams::default(),
             allowed_floating: 1,
+            disconnected: Disconnected::Fail,
             gradient: GradientKind::Difference,
             source: SourceKind::SumForm,
             laplacian: LaplacianKind::Gpm,
@@ -348,6 +375,10 @@ pub struct StepReport {
     pub dt: f64,
     /// Connectivity of the fluid graph (checked before the solve).
     pub connectivity: ConnectivitySummary,
+    /// Fluid particles the [`Disconnected::Float`] policy acted on in this step: those of the
+    /// floating components beyond `allowed_floating` and the isolated ones (0 when the problem
+    /// is the expected one; with [`Disconnected::Fail`] such a step is an error instead).
+    pub disconnected: usize,
     /// Semi-regularity constant `c0` over `Ω`.
     pub c0: f64,
     /// Smallest distance between a fluid particle and any neighbour (ghosts included; `∞` when
@@ -615,7 +646,7 @@ impl<const D: usize> ProjectionStep<D> {
         particles: &Particles<D>,
         nl: &NeighborList<D>,
         params: &ProjectionParams<D>,
-    ) -> Result<(Components, f64, f64), Error> {
+    ) -> Result<(Components, f64, f64, usize), Error> {
         let key = DiagnosticsKey {
             epoch: nl.epoch(),
             generation: nl.generation(),
@@ -638,8 +669,12 @@ impl<const D: usize> ProjectionStep<D> {
             }
         };
         self.diagnostics_cache = Some((key, comps.clone(), c0, spacing));
-        comps.check(params.allowed_floating)?;
-        Ok((comps, c0, spacing))
+        let disconnected = match (comps.check(params.allowed_floating), params.disconnected) {
+            (Ok(()), _) => 0,
+            (Err(e), Disconnected::Fail) => return Err(e.into()),
+            (Err(e), Disconnected::Float) => e.offending.len(),
+        };
+        Ok((comps, c0, spacing, disconnected))
     }
 
     /// Predictor into `u_star` (resized to the particles; ghosts filled by the no-slip rule):
@@ -894,8 +929,9 @@ impl<const D: usize> ProjectionStep<D> {
 
         // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
         //    roles or volumes changed: they are functions of those alone)
-        let (comps, c0, spacing) = self.diagnostics(particles, nl, params)?;
+        let (comps, c0, spacing, disconnected) = self.diagnostics(particles, nl, params)?;
         report.connectivity = comps.summary();
+        report.disconnected = disconnected;
         report.c0 = c0;
         report.min_spacing = spacing;
         report.timings.diagnostics = t.elapsed().as_secs_f64();

@@ -32,7 +32,7 @@ use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
 use crate::particles::Role;
 use crate::poisson::{AmgSetup, SolveParams, SolverKind};
-use crate::projection::SourceKind;
+use crate::projection::{Disconnected, SourceKind};
 use crate::projection::{ProjectionParams, Scheme, StepReport};
 use base64::Engine as _;
 use schemars::{json_schema, JsonSchema, Schema, SchemaGenerator};
@@ -135,6 +135,11 @@ unit_enum_schema!(
     Scheme,
     "pressure-correction scheme",
     [NonIncremental, Incremental, Rotational]
+);
+unit_enum_schema!(
+    Disconnected,
+    "policy for fluid cut off from the rest: fail, or float (each such component its own floating one)",
+    [Fail, Float]
 );
 unit_enum_schema!(
     SourceKind,
@@ -1253,6 +1258,9 @@ pub struct ProjectionSpec {
     pub source_ghosts: GhostContinuation,
     /// Floating components allowed.
     pub allowed_floating: usize,
+    /// Policy for components beyond them (files before it was recorded: fail).
+    #[serde(default)]
+    pub disconnected: Disconnected,
     /// Connectivity and c0 reused while their inputs are unchanged.
     pub reuse_diagnostics: bool,
     /// Gradient of the predictor and the correction (files before it was recorded: difference).
@@ -1310,6 +1318,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             solve,
             source_ghosts,
             allowed_floating,
+            disconnected,
             reuse_diagnostics,
             gradient,
             source,
@@ -1325,6 +1334,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             solve,
             source_ghosts: source_ghosts.into(),
             allowed_floating,
+            disconnected,
             reuse_diagnostics,
             gradient,
             source,
@@ -1346,6 +1356,7 @@ impl ProjectionSpec {
             solve: self.solve,
             source_ghosts: self.source_ghosts.into(),
             allowed_floating: self.allowed_floating,
+            disconnected: self.disconnected,
             reuse_diagnostics: self.reuse_diagnostics,
             gradient: self.gradient,
             source: self.source,

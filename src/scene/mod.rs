@@ -29,7 +29,7 @@ use crate::flow::{
 use crate::kernel::Weight;
 use crate::neighbors::NeighborConfig;
 use crate::poisson::SolveParams;
-use crate::projection::{ProjectionParams, Scheme};
+use crate::projection::{Disconnected, ProjectionParams, Scheme};
 use crate::record::schema::ToBoundarySpec;
 use crate::record::{
     OutputLock, RecordError, RecordLevel, RecordSummary, Recorder, RecorderOptions,
@@ -91,6 +91,9 @@ pub struct FlowConfig {
     pub limits: TimeStepLimits,
     /// Linear solver.
     pub solve: SolveParams,
+    /// Policy for fluid cut off from the rest ([`Disconnected`]): `null` (default) is `float`
+    /// for Lagrangian runs, where particles can leave the bulk, and `fail` for fixed ones.
+    pub disconnected: Option<Disconnected>,
 }
 
 impl Default for FlowConfig {
@@ -115,6 +118,7 @@ impl Default for FlowConfig {
             operators: OperatorSet::Auto,
             limits: TimeStepLimits::default(),
             solve: SolveParams::default(),
+            disconnected: None,
         }
     }
 }
@@ -236,6 +240,10 @@ impl FlowConfig {
         projection.viscous_theta = self.viscous_theta;
         projection.solve = self.solve;
         projection.allowed_floating = 1;
+        projection.disconnected = self.disconnected.unwrap_or(match self.motion {
+            Motion::Lagrangian => Disconnected::Float,
+            Motion::Eulerian => Disconnected::Fail,
+        });
         let mut limits = self.limits;
         limits.u_ref = limits.u_ref.max(u_ref.abs());
         FlowParams {
@@ -350,7 +358,8 @@ config_fields!(FlowConfig {
     pair_weights,
     operators,
     limits,
-    solve
+    solve,
+    disconnected
 });
 
 /// A scene's own configuration keys (beside the shared [`FlowConfig`]); independent of the
@@ -799,6 +808,10 @@ pub struct MonitorRanges {
     pub max_floating: usize,
     /// Most isolated fluid particles in a step.
     pub max_isolated: usize,
+    /// Steps in which the [`Disconnected::Float`] policy acted (fluid cut off from the rest).
+    pub disconnected_steps: usize,
+    /// Most fluid particles it acted on in a step.
+    pub max_disconnected: usize,
     /// Largest Theorem 4.5 ratio (the theory bounds it by 1).
     pub max_stability_ratio: f64,
     /// Largest `‖∇̂h·uⁿ⁺¹‖ / ‖∇̂h·u*‖` (divergence after over before the projection).
@@ -825,6 +838,8 @@ impl MonitorRanges {
             min_spacing: f64::INFINITY,
             max_floating: 0,
             max_isolated: 0,
+            disconnected_steps: 0,
+            max_disconnected: 0,
             max_stability_ratio: 0.0,
             max_div_ratio: 0.0,
             max_correction_ratio: 0.0,
@@ -840,6 +855,8 @@ impl MonitorRanges {
         self.min_spacing = self.min_spacing.min(p.min_spacing);
         self.max_floating = self.max_floating.max(p.connectivity.floating);
         self.max_isolated = self.max_isolated.max(p.connectivity.isolated);
+        self.disconnected_steps += usize::from(p.disconnected > 0);
+        self.max_disconnected = self.max_disconnected.max(p.disconnected);
         self.max_stability_ratio = self.max_stability_ratio.max(p.stability_ratio);
         if p.div_before > 0.0 {
             self.max_div_ratio = self.max_div_ratio.max(p.div_after / p.div_before);
