@@ -371,6 +371,18 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         self.stale = true;
     }
 
+    /// `∇p/ρ` of the current pressure on the current configuration, into `out`
+    /// ([`ProjectionStep::pressure_gradient_into`]).
+    fn pressure_gradient_into(&mut self, out: &mut Vec<[f64; D]>) {
+        self.projection.pressure_gradient_into(
+            &mut self.particles,
+            &self.nl,
+            &self.boundary,
+            &self.params.projection,
+            out,
+        );
+    }
+
     /// Brings ghosts, neighbours and volumes up to date with the positions.
     fn refresh(&mut self) -> Result<bool, Error> {
         let ghosts = self.plan.has(Stage::Ghosts);
@@ -577,13 +589,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             // adds ½(∇pⁿ|xⁿ⁺¹ − ∇pⁿ|xⁿ)/ρ (with −∇p at the new positions alone, the velocity
             // of a particle that crosses the pressure field is first order in time)
             let mut g = std::mem::take(&mut self.extra_accel);
-            self.projection.pressure_gradient_into(
-                &mut self.particles,
-                &self.nl,
-                &self.boundary,
-                &self.params.projection,
-                &mut g,
-            );
+            self.pressure_gradient_into(&mut g);
             for (i, gi) in g.iter_mut().enumerate() {
                 // fluid particles keep their index; ghosts are regenerated
                 let old = match self.old_pressure_grad.get(i) {
@@ -621,13 +627,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         pred.add_to(&mut report);
         if trapezoid {
             let mut g = std::mem::take(&mut self.old_pressure_grad);
-            self.projection.pressure_gradient_into(
-                &mut self.particles,
-                &self.nl,
-                &self.boundary,
-                &self.params.projection,
-                &mut g,
-            );
+            self.pressure_gradient_into(&mut g);
             self.old_pressure_grad = g;
         }
         if lagrangian {
