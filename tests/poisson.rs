@@ -789,3 +789,81 @@ fn solve_band(p: &gpm::scene::manufactured::BandProblem<2>) -> (Vec<f64>, SolveI
         .unwrap();
     (phi, info)
 }
+
+/// With a neighbour skin, the pattern of the pairs within `h` (`pattern_within_h`, default)
+/// holds fewer entries than the candidates' pattern and gives the same solution; after the
+/// particles move (the same list updated, not searched again) it follows the new pairs — no
+/// pair is missing and the solution still matches — while the candidates' pattern stays.
+#[test]
+fn pattern_within_h_drops_the_skin_pairs_and_follows_moving_particles() {
+    use gpm::geometry::lattice;
+    use gpm::neighbors::NeighborConfig;
+    let n = 20;
+    let dx = 1.0 / n as f64;
+    let h = 3.0 * dx;
+    let b = 4.0 * dx;
+    let mut x = lattice([-b, -b], [1.0 + b, 1.0 + b], dx);
+    let inside = |p: &[f64; 2]| p.iter().all(|&c| c > 0.0 && c < 1.0);
+    let role: Vec<Role> = x
+        .iter()
+        .map(|p| {
+            if inside(p) {
+                Role::Fluid
+            } else {
+                Role::Dirichlet
+            }
+        })
+        .collect();
+    let vol = vec![dx * dx; x.len()];
+    let rhs: Vec<f64> = x.iter().map(|p| (PI * p[0]).sin() + p[1]).collect();
+    let mut nl =
+        NeighborList::build(NeighborConfig::new(Weight::WendlandC2, h, 0.3 * h), &x).unwrap();
+    let params = |within_h: bool| SolveParams {
+        solver: SolverKind::Cholesky,
+        pattern_within_h: within_h,
+        ..SolveParams::default()
+    };
+    let (mut within, mut candidates) = (PoissonSolver::new(), PoissonSolver::new());
+    let len = x.len();
+    let solve = |nl: &NeighborList<2>, s: &mut PoissonSolver, within_h: bool| {
+        let comps = connectivity(nl, &role);
+        let mut phi = vec![0.0; len];
+        let info = s
+            .solve(nl, &vol, &role, &comps, &rhs, &mut phi, &params(within_h))
+            .unwrap();
+        (info, phi)
+    };
+    let max_diff = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .map(|(u, v)| (u - v).abs())
+            .fold(0.0, f64::max)
+    };
+    let (wi0, w0) = solve(&nl, &mut within, true);
+    let (ci0, c0) = solve(&nl, &mut candidates, false);
+    assert!(
+        (wi0.nnz as f64) < 0.75 * ci0.nnz as f64,
+        "within h {} vs candidates {}",
+        wi0.nnz,
+        ci0.nnz
+    );
+    assert!(max_diff(&w0, &c0) < 1e-10, "{}", max_diff(&w0, &c0));
+
+    // move every particle by up to 0.1 h (within the skin: the list is updated, not searched)
+    for (i, p) in x.iter_mut().enumerate() {
+        let a = 0.7 * i as f64;
+        p[0] += 0.1 * h * a.sin();
+        p[1] += 0.1 * h * a.cos();
+    }
+    let up = nl.update(&x).unwrap();
+    assert!(!up.rebuilt, "the move stays within half the skin");
+    let (wi1, w1) = solve(&nl, &mut within, true);
+    let (ci1, c1) = solve(&nl, &mut candidates, false);
+    assert!(
+        wi1.pattern_rebuilt && wi1.nnz != wi0.nnz,
+        "{wi0:?} -> {wi1:?}"
+    );
+    assert!(!ci1.pattern_rebuilt && ci1.nnz == ci0.nnz);
+    assert!(max_diff(&w1, &c1) < 1e-10, "{}", max_diff(&w1, &c1));
+    assert!(max_diff(&w1, &w0) > 1e-6, "the move changed the solution");
+}

@@ -21,7 +21,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// The assembled matrix `K` over the fluid unknowns, in full symmetric CSR form.
 #[derive(Clone, Debug, Default)]
 pub struct Assembly {
-    key: Option<(u64, u64)>,
+    key: Option<(u64, u64, u64)>,
     values_key: Option<ValuesKey>,
     pattern_id: u64,
     /// Unknown index of each particle (`u32::MAX` when the particle is not an unknown).
@@ -39,6 +39,12 @@ pub struct Assembly {
     /// Skip refilling the values while their inputs are unchanged (default false here; the
     /// solvers switch it on through [`crate::poisson::SolveParams::reuse_values`]).
     pub reuse_values: bool,
+    /// Only the pairs within `h` enter the pattern (the neighbour skin's pairs carry zero
+    /// values): the pattern then follows the pair set, rebuilt whenever the pair data change
+    /// (moving particles: every step) rather than only when the candidates are searched again.
+    /// Off by default here; the solvers set it from
+    /// [`crate::poisson::SolveParams::pattern_within_h`].
+    pub within_h: bool,
     values_reused: bool,
 }
 
@@ -87,7 +93,10 @@ impl Assembly {
 
     /// Rebuilds the pattern when the candidate pairs or the roles changed; returns true if it did.
     pub fn update_pattern<const D: usize>(&mut self, nl: &NeighborList<D>, role: &[Role]) -> bool {
-        let key = (nl.epoch(), role_hash(role));
+        // with a skin, the pairs within h change with the pair data, not only with the list
+        let within_h = self.within_h && nl.config().skin > 0.0;
+        let generation = if within_h { nl.generation() } else { 0 };
+        let key = (nl.epoch(), generation, role_hash(role));
         if self.key == Some(key) && self.unknown.len() == role.len() {
             return false;
         }
@@ -100,6 +109,8 @@ impl Assembly {
                 self.particle.push(i as u32);
             }
         }
+        // the candidates' pattern (stable while the list is not searched again), or the
+        // pairs within h of the current pair data
         let (co, ci) = nl.pattern();
         let unknown = &self.unknown;
         let rows: Vec<Vec<u32>> = self
@@ -108,9 +119,17 @@ impl Assembly {
             .with_min_len(256)
             .map(|&p| {
                 let p = p as usize;
-                let mut cols: Vec<u32> = ci[co[p]..co[p + 1]]
-                    .iter()
-                    .filter_map(|&j| alias(role, j as usize))
+                let candidates: Box<dyn Iterator<Item = u32>> = if within_h {
+                    Box::new(
+                        nl.row(p)
+                            .filter(|&k| nl.w()[k] > 0.0)
+                            .map(|k| nl.indices()[k]),
+                    )
+                } else {
+                    Box::new(ci[co[p]..co[p + 1]].iter().copied())
+                };
+                let mut cols: Vec<u32> = candidates
+                    .filter_map(|j| alias(role, j as usize))
                     .filter(|&s| s != p)
                     .map(|s| unknown[s])
                     .collect();
@@ -228,6 +247,10 @@ impl Assembly {
                     let s = alias(role, j);
                     let sg = sigma.map(|sg| sg[j]).unwrap_or(1.0);
                     let a = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
+                    if a == 0.0 {
+                        // beyond h (a skin pair, possibly not in the pattern): adds nothing
+                        continue;
+                    }
                     if s == Some(p) {
                         // own image: (σ u_p + b − u_p)
                         dsum += a * (1.0 - sg);

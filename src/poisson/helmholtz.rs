@@ -72,6 +72,7 @@ impl HelmholtzSolver {
                 }
             }
         }
+        self.assembly.within_h = params.pattern_within_h;
         let pattern_rebuilt = self.assembly.update_pattern(nl, role);
         self.assembly.reuse_values = params.reuse_values;
         self.assembly

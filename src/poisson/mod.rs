@@ -119,6 +119,13 @@ pub struct SolveParams {
     /// (`amg_lag`) or its aggregates with new Galerkin operators (`amg_reuse_values`) until the
     /// iteration rate asks for a refresh or a rebuild (default true).
     pub amg_reuse_aggregates: bool,
+    /// Matrix pattern of the pairs within `h` only (default true). With a neighbour skin
+    /// (moving particles) the candidate list also holds pairs between `h` and `h + skin`,
+    /// whose matrix entries are zero: kept in the pattern (false) it can be reused until the
+    /// list is searched again, at the cost of carrying those zeros through every product
+    /// (1.5× the entries at skin 0.3h); left out (true) the pattern follows the pair set and
+    /// is rebuilt whenever the pair data change. No effect without a skin.
+    pub pattern_within_h: bool,
 }
 
 impl SolveParams {
@@ -197,6 +204,7 @@ impl Default for SolveParams {
             amg_lag: true,
             amg_lag_factor: 1.5,
             amg_reuse_aggregates: true,
+            pattern_within_h: true,
         }
     }
 }
@@ -327,6 +335,7 @@ impl PoissonSolver {
         params: &SolveParams,
     ) -> Result<SolveInfo, SolveError> {
         let t0 = Instant::now();
+        self.assembly.within_h = params.pattern_within_h;
         let pattern_rebuilt = self.assembly.update_pattern(nl, role);
         self.assembly.reuse_values = params.reuse_values;
         self.assembly.fill_values(nl, vol, role)?;
