@@ -1149,13 +1149,8 @@ impl Amg {
         self.refresh_inner(a, false);
     }
 
-    /// [`Self::refresh`] for a matrix whose pattern changed (the same unknowns): the finest
-    /// level's spectral radius is estimated again (see
-    /// [`Self::update_fine_smoother_new_pattern`]).
-    pub fn refresh_new_pattern(&mut self, a: CsrRef<'_>) {
-        self.refresh_inner(a, true);
-    }
-
+    /// [`Self::refresh`]; with `new_pattern` (the same unknowns, a changed pattern) the finest
+    /// level's spectral radius is estimated again (see [`Self::update_fine`]).
     fn refresh_inner(&mut self, a: CsrRef<'_>, new_pattern: bool) {
         assert!(
             a.rows() == self.n,
@@ -1198,14 +1193,10 @@ impl Amg {
         self.update_fine(a, false);
     }
 
-    /// [`Self::update_fine_smoother`] for a matrix whose pattern changed (the same particles
-    /// moved): the finest level's spectral radius is estimated again, since a Jacobi weight set
-    /// for the old matrix may exceed the new one's stable range (the V-cycle is then not
-    /// positive definite).
-    pub fn update_fine_smoother_new_pattern(&mut self, a: CsrRef<'_>) {
-        self.update_fine(a, true);
-    }
-
+    /// [`Self::update_fine_smoother`]; with `estimate` (a matrix whose pattern changed: the
+    /// same particles moved) the finest level's spectral radius is estimated again, since a
+    /// Jacobi weight set for the old matrix may exceed the new one's stable range (the V-cycle
+    /// is then not positive definite).
     fn update_fine(&mut self, a: CsrRef<'_>, estimate: bool) {
         assert_eq!(a.rows(), self.n, "matrix size changed");
         if self.transfers.is_empty() {
@@ -1512,21 +1503,13 @@ impl AmgCache {
             }
             AmgSetup::Refreshed => {
                 let h = self.amg.as_mut().expect("hierarchy");
-                if same {
-                    h.refresh(m);
-                } else {
-                    h.refresh_new_pattern(m);
-                }
+                h.refresh_inner(m, !same);
                 self.pattern_id = a.pattern_id();
                 self.refreshes += 1;
             }
             AmgSetup::Lagged => {
                 let h = self.amg.as_mut().expect("hierarchy");
-                if same {
-                    h.update_fine_smoother(m);
-                } else {
-                    h.update_fine_smoother_new_pattern(m);
-                }
+                h.update_fine(m, !same);
                 self.pattern_id = a.pattern_id();
                 self.lagged += 1;
             }
