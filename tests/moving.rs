@@ -345,7 +345,6 @@ fn taylor_green_with_a_planted_particle(
 ) -> (Particles<2>, usize) {
     use gpm::geometry::lattice;
     let dx = 1.0 / n as f64;
-    let two_pi = 2.0 * std::f64::consts::PI;
     let x = lattice([0.0, 0.0], [1.0, 1.0], dx);
     let xk = x[k];
     let mut p = Particles::<2>::new();
@@ -358,10 +357,7 @@ fn taylor_green_with_a_planted_particle(
         if i == k {
             planted = p.len();
         }
-        let u = [
-            u0 * (two_pi * xi[0]).sin() * (two_pi * xi[1]).cos(),
-            -u0 * (two_pi * xi[0]).cos() * (two_pi * xi[1]).sin(),
-        ];
+        let (u, _) = taylor_green::exact(100.0, u0, xi, 0.0);
         p.push(*xi, u, 0.0, dx * dx, Role::Fluid);
     }
     (p, planted)
