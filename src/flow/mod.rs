@@ -438,7 +438,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
     /// Lagrangian: predictor and projection at `xⁿ`, then the particles move with `uⁿ⁺¹` plus
     /// their shift (Fickian and wall margin, with the Taylor correction of `u` and `p`).
     pub fn advance(&mut self) -> Result<FlowReport, Error> {
-        self.advance_inner(None)
+        crate::math::in_pool(|| self.advance_inner(None))
     }
 
     /// Advances one step that ends at time `t` at the latest: the step of
@@ -460,7 +460,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             )
             .into());
         }
-        self.advance_inner(Some(t))
+        crate::math::in_pool(|| self.advance_inner(Some(t)))
     }
 
     /// Advances until the time is exactly `t` (the last step shortened as in
@@ -481,7 +481,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         let mut last = None;
         while self.time < t {
-            last = Some(self.advance_inner(Some(t))?);
+            last = Some(crate::math::in_pool(|| self.advance_inner(Some(t)))?);
         }
         Ok(last)
     }
@@ -559,6 +559,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             // ũⁿ, for the material acceleration after the projection
             self.material_accel.clone_from(&self.particles.u);
         }
+        // the predictor's right side computed here (convection, the trapezoidal pressure term)
+        // is counted in the predictor stage's time
+        let t_rhs = Instant::now();
         let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
             if self.plan.has(Stage::Ghosts) {
@@ -605,6 +608,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         } else {
             None
         };
+        let rhs_seconds = t_rhs.elapsed().as_secs_f64();
         let proj = &self.params.projection;
         let mut u_star = Vec::new();
         let pred = self.projection.predict(
@@ -625,10 +629,14 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             &u_star,
         )?;
         pred.add_to(&mut report);
+        report.timings.predictor += rhs_seconds;
         if trapezoid {
+            // ∇pⁿ⁺¹ at xⁿ⁺¹ for the next step's trapezoidal term (the correction's operators)
+            let t = Instant::now();
             let mut g = std::mem::take(&mut self.old_pressure_grad);
             self.pressure_gradient_into(&mut g);
             self.old_pressure_grad = g;
+            report.timings.correction += t.elapsed().as_secs_f64();
         }
         if lagrangian {
             let p = &self.particles;

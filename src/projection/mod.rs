@@ -744,6 +744,22 @@ impl<const D: usize> ProjectionStep<D> {
         accel: Option<&[[f64; D]]>,
         u_star: &mut Vec<[f64; D]>,
     ) -> Result<Prediction, Error> {
+        crate::math::in_pool(|| {
+            self.predict_inner(particles, nl, boundary, params, dt, accel, u_star)
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn predict_inner(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+        u_star: &mut Vec<[f64; D]>,
+    ) -> Result<Prediction, Error> {
         let t = Instant::now();
         check_dt(dt)?;
         params.validate()?;
@@ -905,6 +921,18 @@ impl<const D: usize> ProjectionStep<D> {
     /// # Ok::<(), gpm::Error>(())
     /// ```
     pub fn project(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        u_star: &[[f64; D]],
+    ) -> Result<StepReport, Error> {
+        crate::math::in_pool(|| self.project_inner(particles, nl, boundary, params, dt, u_star))
+    }
+
+    fn project_inner(
         &mut self,
         particles: &mut Particles<D>,
         nl: &NeighborList<D>,
