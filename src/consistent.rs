@@ -537,6 +537,65 @@ pub fn ls_gradient_laplacian<const D: usize>(
 }
 
 /// Quadratic basis in scaled coordinates `z`: `[z_1..z_D, z_1²/2..z_D²/2, z_a z_b (a < b)]`.
+/// Largest quadratic basis ([`n_quadratic`] of 3).
+const MAX_Q: usize = 9;
+
+/// [`quadratic_basis`] into the first [`n_quadratic`]`(D)` entries of a stack array.
+fn quadratic_basis_into<const D: usize>(z: &[f64; D], p: &mut [f64; MAX_Q]) {
+    for a in 0..D {
+        p[a] = z[a];
+        p[D + a] = 0.5 * z[a] * z[a];
+    }
+    let mut k = 2 * D;
+    for a in 0..D {
+        for b in a + 1..D {
+            p[k] = z[a] * z[b];
+            k += 1;
+        }
+    }
+}
+
+/// The inverse of the `m × m` matrix `a` (row-major, `m ≤ MAX_Q`) into `inv` by Gauss–Jordan
+/// elimination with partial pivoting; false when a pivot is zero or the result not finite.
+fn invert_small(a: &[f64; MAX_Q * MAX_Q], m: usize, inv: &mut [f64; MAX_Q * MAX_Q]) -> bool {
+    let mut w = *a;
+    inv.fill(0.0);
+    for r in 0..m {
+        inv[r * m + r] = 1.0;
+    }
+    for col in 0..m {
+        let piv = (col..m)
+            .max_by(|&x, &y| w[x * m + col].abs().total_cmp(&w[y * m + col].abs()))
+            .unwrap_or(col);
+        if w[piv * m + col] == 0.0 {
+            return false;
+        }
+        if piv != col {
+            for c in 0..m {
+                w.swap(piv * m + c, col * m + c);
+                inv.swap(piv * m + c, col * m + c);
+            }
+        }
+        let d = 1.0 / w[col * m + col];
+        for c in 0..m {
+            w[col * m + c] *= d;
+            inv[col * m + c] *= d;
+        }
+        for r in 0..m {
+            if r != col {
+                let f = w[r * m + col];
+                if f != 0.0 {
+                    for c in 0..m {
+                        w[r * m + c] -= f * w[col * m + c];
+                        inv[r * m + c] -= f * inv[col * m + c];
+                    }
+                }
+            }
+        }
+    }
+    inv[..m * m].iter().all(|v| v.is_finite())
+}
+
 fn quadratic_basis<const D: usize>(z: &[f64; D], p: &mut DVector<f64>) {
     for a in 0..D {
         p[a] = z[a];
@@ -833,6 +892,10 @@ impl<const D: usize> LsOperators<D> {
             return false;
         };
         let m = n_quadratic(D);
+        assert!(
+            m <= MAX_Q,
+            "least-squares operators are defined up to 3 dimensions"
+        );
         let hinv = 1.0 / nl.h();
         let hinv2 = hinv * hinv;
         let d = D as f64;
@@ -889,61 +952,70 @@ impl<const D: usize> LsOperators<D> {
         let fallback: Vec<usize> = slices
             .into_par_iter()
             .with_min_len(64)
-            .map_init(
-                // per-thread scratch: the normal matrix, its inverse, a basis vector and
-                // its image (no allocation per row or pair)
-                || {
-                    (
-                        DMatrix::<f64>::zeros(m, m),
-                        DMatrix::<f64>::zeros(m, m),
-                        DVector::<f64>::zeros(m),
-                        DVector::<f64>::zeros(m),
-                    )
-                },
-                |(a, inv, p, y), (i, out)| {
-                    a.fill(0.0);
+            .map(|(i, out)| {
+                // the normal matrix and its inverse on the stack (m ≤ 9; a dynamic nalgebra
+                // matrix per row made this loop 2-3x slower, the step's largest item on
+                // moving particles)
+                let mut a = [0.0; MAX_Q * MAX_Q];
+                let mut inv = [0.0; MAX_Q * MAX_Q];
+                let mut p = [0.0; MAX_Q];
+                for k in nl.row(i) {
+                    let (dk, wk) = point(k, nl.indices()[k] as usize);
+                    let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                    quadratic_basis_into(&z, &mut p);
+                    for r in 0..m {
+                        let wr = wk * p[r];
+                        for c in r..m {
+                            a[r * m + c] += wr * p[c];
+                        }
+                    }
+                }
+                for r in 0..m {
+                    for c in 0..r {
+                        a[r * m + c] = a[c * m + r];
+                    }
+                }
+                let start = nl.row(i).start;
+                // a well-posed fit: the normal matrix is regular and not too ill-conditioned
+                let ok = invert_small(&a, m, &mut inv) && {
+                    let na = a[..m * m].iter().map(|v| v.abs()).fold(0.0, f64::max);
+                    let ni = inv[..m * m].iter().map(|v| v.abs()).fold(0.0, f64::max);
+                    na * ni < LS_MAX_CONDITION
+                };
+                if ok {
                     for k in nl.row(i) {
                         let (dk, wk) = point(k, nl.indices()[k] as usize);
                         let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
-                        quadratic_basis(&z, p);
-                        a.ger(wk, p, p, 1.0);
-                    }
-                    let start = nl.row(i).start;
-                    inv.copy_from(a);
-                    let inverted = inv.try_inverse_mut() && inv.iter().all(|v| v.is_finite());
-                    // a well-posed fit: the normal matrix is regular and not too ill-conditioned
-                    let ok = inverted && {
-                        let na = a.iter().map(|v| v.abs()).fold(0.0, f64::max);
-                        let ni = inv.iter().map(|v| v.abs()).fold(0.0, f64::max);
-                        na * ni < LS_MAX_CONDITION
-                    };
-                    if ok {
-                        for k in nl.row(i) {
-                            let (dk, wk) = point(k, nl.indices()[k] as usize);
-                            let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
-                            quadratic_basis(&z, p);
-                            inv.mul_to(&*p, y);
-                            let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                            for c in 0..D {
-                                o[c] = wk * y[c] * hinv;
-                            }
-                            o[D] = wk * (0..D).map(|c| y[D + c]).sum::<f64>() * hinv2;
+                        quadratic_basis_into(&z, &mut p);
+                        // the rows of A⁻¹p that are used: the first derivatives and the
+                        // Hessian's diagonal
+                        let y = |r: usize| -> f64 {
+                            inv[r * m..r * m + m]
+                                .iter()
+                                .zip(&p[..m])
+                                .map(|(x, q)| x * q)
+                                .sum::<f64>()
+                        };
+                        let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                        for c in 0..D {
+                            o[c] = wk * y(c) * hinv;
                         }
-                        None
-                    } else {
-                        for k in nl.row(i) {
-                            let j = nl.indices()[k] as usize;
-                            let f = vol[j] * nl.wr2()[k];
-                            let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                            for c in 0..D {
-                                o[c] = d * f * nl.dx()[k][c];
-                            }
-                            o[D] = 2.0 * d * f;
-                        }
-                        Some(i)
+                        o[D] = wk * (0..D).map(|c| y(D + c)).sum::<f64>() * hinv2;
                     }
-                },
-            )
+                    None
+                } else {
+                    for k in nl.row(i) {
+                        let j = nl.indices()[k] as usize;
+                        let f = vol[j] * nl.wr2()[k];
+                        let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
+                        for c in 0..D {
+                            o[c] = d * f * nl.dx()[k][c];
+                        }
+                        o[D] = 2.0 * d * f;
+                    }
+                    Some(i)
+                }
+            })
             .flatten()
             .collect();
         self.fallback_rows = fallback;
