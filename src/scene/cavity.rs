@@ -7,6 +7,10 @@
 //! value between two samples, divided by the interval, is below `steady.tol` (in units of
 //! `U² / L`). The reported profiles are the mean of the samples taken over the last
 //! `steady.average_window` time units (Lagrangian particles sample a steady field with noise).
+//! Moving particles sample a steady field with noise of their own (at n = 50 the samples still
+//! differ by `1e-2 U²/L` at t = 40), so by default a Lagrangian run compares the *means* of the
+//! last two windows of `average_window` time units instead of the last two samples
+//! ([`SteadyCompare::Means`]; `steady.compare` chooses either).
 
 use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
@@ -39,6 +43,38 @@ pub struct SteadyCriterion {
     pub average_window: f64,
     /// Stop `average_window` after steadiness is first reached (default true).
     pub stop_when_steady: bool,
+    /// What is compared: the last two samples or the means of the last two windows (default
+    /// `null`: samples for Eulerian runs, means for Lagrangian ones).
+    pub compare: Option<SteadyCompare>,
+}
+
+/// How the profile's rate of change is measured for [`SteadyCriterion`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SteadyCompare {
+    /// `max|P(t_k) − P(t_{k−1})| / interval` over the last two samples: the rate of a smooth
+    /// approach to steady state (fixed particles).
+    Samples,
+    /// `max|P̄_k − P̄_{k−1}| / W` between the means `P̄` of the last two disjoint windows of
+    /// `m = round(W / interval)` samples (`W = m · interval`, at least one sample): the drift
+    /// of a noisy signal, whose sample-to-sample changes never fall below its noise (moving
+    /// particles). Once steady the run stops at once: the last window is the averaged one.
+    Means,
+}
+
+impl SteadyCriterion {
+    /// The comparison in force for a run in `motion`.
+    pub fn compare_for(&self, motion: crate::flow::Motion) -> SteadyCompare {
+        self.compare.unwrap_or(match motion {
+            crate::flow::Motion::Lagrangian => SteadyCompare::Means,
+            crate::flow::Motion::Eulerian => SteadyCompare::Samples,
+        })
+    }
+
+    /// Samples per window in [`SteadyCompare::Means`].
+    pub fn window_samples(&self) -> usize {
+        ((self.average_window / self.interval).round() as usize).max(1)
+    }
 }
 
 impl Default for SteadyCriterion {
@@ -48,6 +84,7 @@ impl Default for SteadyCriterion {
             tol: 1e-3,
             average_window: 2.0,
             stop_when_steady: true,
+            compare: None,
         }
     }
 }
@@ -176,6 +213,43 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
         params.projection.source_ghosts = rule;
     }
     Simulation::new(p, walls, cfg.neighbor_config(), params)
+}
+
+/// The profiles' rate of change by `compare` (`m` samples per window for the means), `None`
+/// until there are enough samples.
+fn profile_rate(
+    samples: &[(f64, Vec<f64>, Vec<f64>)],
+    compare: SteadyCompare,
+    m: usize,
+) -> Option<f64> {
+    let span = |a: &[(f64, Vec<f64>, Vec<f64>)]| -> (f64, Vec<f64>) {
+        let k = a.len() as f64;
+        let t = a.iter().map(|s| s.0).sum::<f64>() / k;
+        let mut mean = vec![0.0; a[0].1.len() + a[0].2.len()];
+        for s in a {
+            for (m, v) in mean.iter_mut().zip(s.1.iter().chain(&s.2)) {
+                *m += v / k;
+            }
+        }
+        (t, mean)
+    };
+    let (new, old) = match compare {
+        SteadyCompare::Samples => {
+            let l = samples.len();
+            (l >= 2).then(|| (span(&samples[l - 1..]), span(&samples[l - 2..l - 1])))?
+        }
+        SteadyCompare::Means => {
+            let l = samples.len();
+            (l >= 2 * m).then(|| (span(&samples[l - m..]), span(&samples[l - 2 * m..l - m])))?
+        }
+    };
+    let du = new
+        .1
+        .iter()
+        .zip(&old.1)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    Some(du / (new.0 - old.0))
 }
 
 /// Sample positions along the centre lines: 101 evenly spaced points plus Ghia's.
@@ -390,23 +464,21 @@ impl Scene<2> for Cavity {
         res.monitor.observe(rep);
         if sim.time + 1e-12 >= s.next_sample {
             let (u, v) = sample_profiles(sim, &s.ys, &s.xs);
-            if let Some(last) = s.samples.last() {
-                let dt = sim.time - last.0;
-                let du = u
-                    .iter()
-                    .zip(&last.1)
-                    .chain(v.iter().zip(&last.2))
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max);
-                s.rate = du / dt;
+            s.samples.push((sim.time, u, v));
+            s.next_sample += st.interval;
+            let compare = st.compare_for(cfg.motion);
+            if let Some(rate) = profile_rate(&s.samples, compare, st.window_samples()) {
+                s.rate = rate;
                 if s.rate < st.tol && s.steady_time.is_none() {
                     s.steady_time = Some(sim.time);
                 }
             }
-            s.samples.push((sim.time, u, v));
-            s.next_sample += st.interval;
             if let Some(ts) = s.steady_time {
-                if st.stop_when_steady && sim.time + 1e-12 >= ts + st.average_window {
+                let wait = match compare {
+                    SteadyCompare::Samples => st.average_window,
+                    SteadyCompare::Means => 0.0,
+                };
+                if st.stop_when_steady && sim.time + 1e-12 >= ts + wait {
                     return ControlFlow::Break(());
                 }
             }
@@ -434,12 +506,18 @@ impl Scene<2> for Cavity {
             let (u, v) = sample_profiles(sim, &ys, &xs);
             samples.push((sim.time, u, v));
         }
-        // average the samples of the last window
+        // average the samples of the last window (in `Means` the window that was judged)
         let t_last = samples.last().map_or(sim.time, |s| s.0);
-        let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = samples
-            .iter()
-            .filter(|s| s.0 >= t_last - st.average_window - 1e-9)
-            .collect();
+        let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = match st.compare_for(cfg.motion) {
+            SteadyCompare::Samples => samples
+                .iter()
+                .filter(|s| s.0 >= t_last - st.average_window - 1e-9)
+                .collect(),
+            SteadyCompare::Means => {
+                let m = st.window_samples().min(samples.len());
+                samples[samples.len() - m..].iter().collect()
+            }
+        };
         let m = window.len() as f64;
         let u: Vec<f64> = (0..ys.len())
             .map(|k| window.iter().map(|s| s.1[k]).sum::<f64>() / m)
@@ -457,11 +535,21 @@ impl Scene<2> for Cavity {
         res.steady = steady_time.is_some();
         res.steady_time = steady_time;
         res.steady_rate = rate;
-        res.steady_rule = format!(
-            "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
-             profiles averaged over the last {} time units",
-            st.interval, st.tol, st.average_window
-        );
+        res.steady_rule = match st.compare_for(cfg.motion) {
+            SteadyCompare::Samples => format!(
+                "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
+                 profiles averaged over the last {} time units",
+                st.interval, st.tol, st.average_window
+            ),
+            SteadyCompare::Means => format!(
+                "centre-line profiles sampled every {} time units; steady when the means of the last \
+                 two windows of {} samples differ by less than {} U²/L times the window; profiles \
+                 averaged over the last window",
+                st.interval,
+                st.window_samples(),
+                st.tol
+            ),
+        };
         res.ys = ys;
         res.u = u;
         res.xs = xs;
@@ -674,4 +762,72 @@ pub fn write_plots(
         "|u| / U",
         800,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Samples every 0.5 time units of a one-point "profile" `c + drift t ± noise`.
+    fn samples(drift: f64, noise: f64, count: usize) -> Vec<(f64, Vec<f64>, Vec<f64>)> {
+        (0..count)
+            .map(|k| {
+                let t = 0.5 * (k + 1) as f64;
+                let s = if k % 2 == 0 { noise } else { -noise };
+                (t, vec![0.3 + drift * t + s], vec![-0.2 - drift * t])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn noise_of_a_steady_signal_is_not_a_rate_for_the_window_means() {
+        // steady with ±0.005 noise: consecutive samples differ by 0.01 over 0.5 → rate 0.02,
+        // two windows of 4 samples each hold two of either sign → equal means, rate 0
+        let s = samples(0.0, 0.005, 8);
+        let by_samples = profile_rate(&s, SteadyCompare::Samples, 4).unwrap();
+        assert!((by_samples - 0.02).abs() < 1e-12, "{by_samples}");
+        let by_means = profile_rate(&s, SteadyCompare::Means, 4).unwrap();
+        assert!(by_means.abs() < 1e-12, "{by_means}");
+        // too few samples for two windows
+        assert_eq!(profile_rate(&s[..7], SteadyCompare::Means, 4), None);
+        assert_eq!(profile_rate(&s[..1], SteadyCompare::Samples, 4), None);
+    }
+
+    #[test]
+    fn a_drift_is_measured_at_its_rate_by_either_comparison() {
+        // a linear drift of 3e-3 per time unit: the window means differ by 3e-3 × 2
+        // (their centres are 2 time units apart)
+        let s = samples(3e-3, 0.0, 10);
+        for compare in [SteadyCompare::Samples, SteadyCompare::Means] {
+            let r = profile_rate(&s, compare, 4).unwrap();
+            assert!((r - 3e-3).abs() < 1e-12, "{compare:?}: {r}");
+        }
+    }
+
+    #[test]
+    fn the_comparison_defaults_by_frame() {
+        use crate::flow::Motion;
+        let st = SteadyCriterion::default();
+        assert_eq!(st.compare_for(Motion::Lagrangian), SteadyCompare::Means);
+        assert_eq!(st.compare_for(Motion::Eulerian), SteadyCompare::Samples);
+        assert_eq!(st.window_samples(), 4);
+        let chosen = SteadyCriterion {
+            compare: Some(SteadyCompare::Samples),
+            ..st
+        };
+        assert_eq!(
+            chosen.compare_for(Motion::Lagrangian),
+            SteadyCompare::Samples
+        );
+        let cfg: CavityConfig =
+            serde_json::from_str(r#"{"steady": {"compare": "means"}, "motion": "eulerian"}"#)
+                .unwrap();
+        assert_eq!(
+            cfg.scene.steady.compare_for(cfg.motion),
+            SteadyCompare::Means
+        );
+        assert!(
+            serde_json::from_str::<CavityConfig>(r#"{"steady": {"compare": "last"}}"#).is_err()
+        );
+    }
 }
