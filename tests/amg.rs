@@ -600,12 +600,37 @@ fn generic_pcg_with_jacobi_matches_the_fused_loop() {
 
 /// `Auto` keeps a reused Cholesky factor while the matrix values stay the same, and moves to
 /// AMG-CG from the second numeric refactorisation on (values changing every step: moving
-/// particles); the answers agree to the solver tolerance.
+/// particles) when the system has more than `moving_direct_limit` unknowns; the answers agree
+/// to the solver tolerance.
 #[test]
 fn auto_moves_to_amg_when_the_factor_cannot_be_reused() {
     let f = dirichlet_box::<2>(Spec::lattice(20, 3.0, Weight::WendlandC2));
     let c = connectivity(&f.nl, &f.role);
-    let p = SolveParams::default();
+    // 400 unknowns: a small system keeps refactorising under the default limit ...
+    let small = SolveParams::default();
+    assert!(f.len() <= small.moving_direct_limit);
+    let mut s = PoissonSolver::new();
+    let mut phi = vec![0.0; f.len()];
+    for k in 0..5 {
+        let vol = scaled(&f.vol, |i| 1.0 + 0.01 * k as f64 * ((i % 7) as f64 / 7.0));
+        let i = s
+            .solve(
+                &f.nl,
+                &vol,
+                &f.role,
+                &c,
+                &vec![1.0; f.len()],
+                &mut phi,
+                &small,
+            )
+            .unwrap();
+        assert_eq!(i.solver, SolverKind::Cholesky, "solve {k}");
+    }
+    // ... and moves to AMG when the limit is below its size
+    let p = SolveParams {
+        moving_direct_limit: 100,
+        ..SolveParams::default()
+    };
     let rhs = vec![1.0; f.len()];
     let mut s = PoissonSolver::new();
     let mut phi = vec![0.0; f.len()];
