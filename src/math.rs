@@ -1,4 +1,5 @@
-//! Small fixed-size vector helpers over `[f64; D]`.
+//! Small fixed-size vector helpers over `[f64; D]`, and [`in_pool`] for the entry points that run
+//! many parallel loops.
 //!
 //! Particle state is stored as `Vec<[f64; D]>` so that kiddo, faer and rayon can all borrow it
 //! without copies; these helpers keep the arithmetic on those arrays readable.

@@ -23,9 +23,9 @@ use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
 
-/// The CFL factor (`limits.cfl`) a Lagrangian cavity needs: at the default 0.2 the particles
-/// that the lid drives into its corners blow the run up (Re 100, n = 50: at t ≈ 0.65; 0.15: at
-/// t ≈ 9.8); at 0.1 it runs to t = 20 (measured on this machine, README). The cavity example
+/// The CFL factor (`limits.cfl`) a Lagrangian cavity needs: at the default 0.2 a particle near
+/// the top-left lid corner is driven through the lid (Re 100, n = 50: at t ≈ 0.3; 0.15: at
+/// t ≈ 1.0); at 0.1 it runs to steady state (measured on this machine, README). The cavity example
 /// uses it for `--motion lagrangian` unless `--cfl` is given; a configuration file sets
 /// `limits.cfl` itself.
 pub const LAGRANGIAN_CFL: f64 = 0.1;
