@@ -597,17 +597,10 @@ fn invert_small(a: &[f64; MAX_Q * MAX_Q], m: usize, inv: &mut [f64; MAX_Q * MAX_
 }
 
 fn quadratic_basis<const D: usize>(z: &[f64; D], p: &mut DVector<f64>) {
-    for a in 0..D {
-        p[a] = z[a];
-        p[D + a] = 0.5 * z[a] * z[a];
-    }
-    let mut k = 2 * D;
-    for a in 0..D {
-        for b in a + 1..D {
-            p[k] = z[a] * z[b];
-            k += 1;
-        }
-    }
+    let mut q = [0.0; MAX_Q];
+    quadratic_basis_into(z, &mut q);
+    let m = n_quadratic(D);
+    p.as_mut_slice()[..m].copy_from_slice(&q[..m]);
 }
 
 /// Weighted least-squares interpolant with a linear basis (Shobuzako et al. with `k = 0`,
