@@ -353,11 +353,12 @@ pub fn neighbor_stats<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Ne
     s
 }
 
-/// `‖φ‖_ℓ2(S) = (Σ_{i∈S} ω_i φ_i²)^{1/2}`.
+/// `‖φ‖_ℓ2(S) = (Σ_{i∈S} ω_i φ_i²)^{1/2}` (summed in a fixed order: the same bits every run).
 pub fn norm_l2(vol: &[f64], phi: &[f64], role: &[Role], region: Region) -> f64 {
     phi.par_iter()
         .enumerate()
         .with_min_len(1024)
+        .with_max_len(1024)
         .filter(|(i, _)| region.contains(role[*i]))
         .map(|(i, v)| vol[i] * v * v)
         .sum::<f64>()
@@ -374,6 +375,7 @@ pub fn norm_l2_vec<const D: usize>(
     psi.par_iter()
         .enumerate()
         .with_min_len(1024)
+        .with_max_len(1024)
         .filter(|(i, _)| region.contains(role[*i]))
         .map(|(i, v)| vol[i] * crate::math::norm2(v))
         .sum::<f64>()
@@ -390,9 +392,11 @@ pub fn norm_h01<const D: usize>(
     region: Region,
 ) -> f64 {
     let d = D as f64;
+    // fixed split lengths: the same sum, bit for bit, whatever the work stealing did
     ((0..nl.len())
         .into_par_iter()
         .with_min_len(256)
+        .with_max_len(256)
         .filter(|&i| region.contains(role[i]))
         .map(|i| {
             let fi = phi[i];

@@ -533,9 +533,18 @@ fn objective(
     t: &[f64; M],
     m: usize,
 ) -> f64 {
-    let pairs: f64 = w.par_iter().zip(&rows.half).map(|(w, h)| w * h).sum();
+    // fixed split lengths (here and in `vdot`): the same sums every run
+    let pairs: f64 = w
+        .par_iter()
+        .zip(&rows.half)
+        .with_min_len(2048)
+        .with_max_len(2048)
+        .map(|(w, h)| w * h)
+        .sum();
     let lin: f64 = (0..z.len())
         .into_par_iter()
+        .with_min_len(2048)
+        .with_max_len(2048)
         .map(|u| {
             let mut s = 0.0;
             for q in 0..m {
@@ -812,7 +821,12 @@ impl Precond {
 }
 
 fn vdot(a: &[[f64; M]], b: &[[f64; M]], m: usize) -> f64 {
-    a.par_iter().zip(b).map(|(x, y)| dot(x, y, m)).sum()
+    a.par_iter()
+        .zip(b)
+        .with_min_len(2048)
+        .with_max_len(2048)
+        .map(|(x, y)| dot(x, y, m))
+        .sum()
 }
 
 /// Newton with Armijo backtracking on `Φ`; returns (Newton steps, CG iterations).
