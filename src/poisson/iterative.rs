@@ -79,13 +79,19 @@ fn inv_diagonal(a: &Assembly) -> Vec<f64> {
         .collect()
 }
 
-/// `Σ v_i²`, split at fixed lengths (see `MIN_LEN`).
-fn sum_squares(v: &[f64]) -> f64 {
-    v.par_iter()
+/// `a · b`, split at fixed lengths (see `MIN_LEN`).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.par_iter()
+        .zip(b.par_iter())
         .with_min_len(MIN_LEN)
         .with_max_len(MIN_LEN)
-        .map(|x| x * x)
+        .map(|(x, y)| x * y)
         .sum()
+}
+
+/// `Σ v_i²`, split at fixed lengths (see `MIN_LEN`).
+fn sum_squares(v: &[f64]) -> f64 {
+    dot(v, v)
 }
 
 pub(crate) fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
@@ -223,13 +229,7 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
         if !null.is_empty() {
             project_null(&mut z, null);
         }
-        let rz_new: f64 = r
-            .par_iter()
-            .zip(z.par_iter())
-            .with_min_len(MIN_LEN)
-            .with_max_len(MIN_LEN)
-            .map(|(a, b)| a * b)
-            .sum();
+        let rz_new = dot(&r, &z);
         if rz_new.is_nan() || rz_new <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "preconditioned conjugate gradients: r·Br = {rz_new:e} ≤ 0 at iteration {iters} (preconditioner not positive definite)"
@@ -301,13 +301,7 @@ pub fn pcg(
     let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, m)| r * m).collect();
     let mut p = z.clone();
     let mut q = vec![0.0; n];
-    let mut rz: f64 = r
-        .par_iter()
-        .zip(z.par_iter())
-        .with_min_len(MIN_LEN)
-        .with_max_len(MIN_LEN)
-        .map(|(a, b)| a * b)
-        .sum();
+    let mut rz = dot(&r, &z);
     let mut rnorm = sum_squares(&r).sqrt();
     let r0 = rnorm;
     let mut iters = 0;
