@@ -215,13 +215,10 @@ pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     Simulation::new(p, walls, cfg.neighbor_config(), params)
 }
 
-/// The profiles' rate of change by `compare` (`m` samples per window for the means), `None`
-/// until there are enough samples.
-fn profile_rate(
-    samples: &[(f64, Vec<f64>, Vec<f64>)],
-    compare: SteadyCompare,
-    m: usize,
-) -> Option<f64> {
+/// The profiles' rate of change between the means of the last two windows of `m` samples
+/// (`m = 1`: the last two samples, [`SteadyCompare::Samples`]), `None` until there are enough
+/// samples.
+fn profile_rate(samples: &[(f64, Vec<f64>, Vec<f64>)], m: usize) -> Option<f64> {
     let span = |a: &[(f64, Vec<f64>, Vec<f64>)]| -> (f64, Vec<f64>) {
         let k = a.len() as f64;
         let t = a.iter().map(|s| s.0).sum::<f64>() / k;
@@ -233,16 +230,11 @@ fn profile_rate(
         }
         (t, mean)
     };
-    let (new, old) = match compare {
-        SteadyCompare::Samples => {
-            let l = samples.len();
-            (l >= 2).then(|| (span(&samples[l - 1..]), span(&samples[l - 2..l - 1])))?
-        }
-        SteadyCompare::Means => {
-            let l = samples.len();
-            (l >= 2 * m).then(|| (span(&samples[l - m..]), span(&samples[l - 2 * m..l - m])))?
-        }
-    };
+    let l = samples.len();
+    if m == 0 || l < 2 * m {
+        return None;
+    }
+    let (new, old) = (span(&samples[l - m..]), span(&samples[l - 2 * m..l - m]));
     let du = new
         .1
         .iter()
@@ -467,7 +459,11 @@ impl Scene<2> for Cavity {
             s.samples.push((sim.time, u, v));
             s.next_sample += st.interval;
             let compare = st.compare_for(cfg.motion);
-            if let Some(rate) = profile_rate(&s.samples, compare, st.window_samples()) {
+            let m = match compare {
+                SteadyCompare::Samples => 1,
+                SteadyCompare::Means => st.window_samples(),
+            };
+            if let Some(rate) = profile_rate(&s.samples, m) {
                 s.rate = rate;
                 if s.rate < st.tol && s.steady_time.is_none() {
                     s.steady_time = Some(sim.time);
@@ -784,13 +780,13 @@ mod tests {
         // steady with ±0.005 noise: consecutive samples differ by 0.01 over 0.5 → rate 0.02,
         // two windows of 4 samples each hold two of either sign → equal means, rate 0
         let s = samples(0.0, 0.005, 8);
-        let by_samples = profile_rate(&s, SteadyCompare::Samples, 4).unwrap();
+        let by_samples = profile_rate(&s, 1).unwrap();
         assert!((by_samples - 0.02).abs() < 1e-12, "{by_samples}");
-        let by_means = profile_rate(&s, SteadyCompare::Means, 4).unwrap();
+        let by_means = profile_rate(&s, 4).unwrap();
         assert!(by_means.abs() < 1e-12, "{by_means}");
         // too few samples for two windows
-        assert_eq!(profile_rate(&s[..7], SteadyCompare::Means, 4), None);
-        assert_eq!(profile_rate(&s[..1], SteadyCompare::Samples, 4), None);
+        assert_eq!(profile_rate(&s[..7], 4), None);
+        assert_eq!(profile_rate(&s[..1], 1), None);
     }
 
     #[test]
@@ -798,9 +794,9 @@ mod tests {
         // a linear drift of 3e-3 per time unit: the window means differ by 3e-3 × 2
         // (their centres are 2 time units apart)
         let s = samples(3e-3, 0.0, 10);
-        for compare in [SteadyCompare::Samples, SteadyCompare::Means] {
-            let r = profile_rate(&s, compare, 4).unwrap();
-            assert!((r - 3e-3).abs() < 1e-12, "{compare:?}: {r}");
+        for m in [1, 4] {
+            let r = profile_rate(&s, m).unwrap();
+            assert!((r - 3e-3).abs() < 1e-12, "window {m}: {r}");
         }
     }
 
