@@ -454,21 +454,40 @@ impl<const D: usize> GradientOperator<D> {
         }
     }
 
-    fn plain_mut(&mut self) -> &mut LsOperators<D> {
-        if self.share_walls {
-            &mut self.ls_walls
-        } else {
-            &mut self.ls
-        }
-    }
-
     /// Brings the cached matrices up to date with `nl` and `vol` (every row of the list);
     /// returns true when it recomputed them. A no-op for the difference gradient.
     pub fn prepare(&mut self, nl: &NeighborList<D>, vol: &[f64]) -> bool {
         match self.kind {
             GradientKind::Difference => false,
             GradientKind::Renormalised => self.renorm.update(nl, vol, nl.len()),
-            GradientKind::LeastSquares => self.plain_mut().update(nl, vol, nl.len(), None),
+            GradientKind::LeastSquares if self.share_walls => {
+                self.ls_walls.update(nl, vol, nl.len(), None)
+            }
+            GradientKind::LeastSquares => self.update_plain(nl, vol),
+        }
+    }
+
+    /// Brings the plain least-squares variant up to date (rows without ghosts copied from the
+    /// wall variant when that is current); returns true when it recomputed.
+    pub fn update_plain(&mut self, nl: &NeighborList<D>, vol: &[f64]) -> bool {
+        self.ls
+            .update_sharing(nl, vol, nl.len(), None, &self.ls_walls)
+    }
+
+    /// Brings the wall least-squares variant up to date for the positions and roles in
+    /// `geometry` (rows without ghosts copied from the plain variant when that is current);
+    /// returns true when it recomputed.
+    pub fn update_walls(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
+    ) -> bool {
+        match self.share_walls {
+            true => self.ls_walls.update(nl, vol, nl.len(), geometry),
+            false => self
+                .ls_walls
+                .update_sharing(nl, vol, nl.len(), geometry, &self.ls),
         }
     }
 
@@ -880,6 +899,34 @@ impl<const D: usize> LsOperators<D> {
         rows: usize,
         geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
     ) -> bool {
+        self.update_from(nl, vol, rows, geometry, None)
+    }
+
+    /// [`Self::update`] that copies, from `other` (the other variant) when it is current for
+    /// the same list, volumes and rows, every row without a ghost neighbour: the plain and the
+    /// wall variant differ only in the fit points of ghosts, so those rows are the same fit (in a
+    /// 2D cavity with `h = 3Δx`, three rows in four).
+    pub fn update_sharing(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        rows: usize,
+        geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
+        other: &LsOperators<D>,
+    ) -> bool {
+        let usable =
+            self.walls != other.walls && RenormKey::fresh(&other.key, nl, vol, rows).is_none();
+        self.update_from(nl, vol, rows, geometry, usable.then_some(other))
+    }
+
+    fn update_from(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        rows: usize,
+        geometry: Option<(&[[f64; D]], &[crate::particles::Role])>,
+        donor: Option<&LsOperators<D>>,
+    ) -> bool {
         assert!(rows <= nl.len(), "rows beyond the neighbour list");
         let Some(key) = RenormKey::fresh(&self.key, nl, vol, rows) else {
             return false;
@@ -930,6 +977,16 @@ impl<const D: usize> LsOperators<D> {
                 (d, vol[j] * kernel.w_h(r))
             }
         };
+        // a donor row without ghost neighbours is this variant's row (the wall variant's
+        // partners tell the ghosts; a wall variant built without geometry has none)
+        let partner: &[u32] = match donor {
+            Some(dn) if !self.walls => &dn.partner,
+            _ => &self.partner,
+        };
+        let copied = |i: usize| -> Option<&LsOperators<D>> {
+            let dn = donor?;
+            (partner.is_empty() || nl.row(i).all(|k| partner[k] == nl.indices()[k])).then_some(dn)
+        };
         // rows own disjoint, consecutive pair ranges: split the coefficient array by row
         let mut slices: Vec<(usize, &mut [f64])> = Vec::with_capacity(rows);
         let mut rest: &mut [f64] = &mut self.coef;
@@ -945,16 +1002,23 @@ impl<const D: usize> LsOperators<D> {
         let fallback: Vec<usize> = slices
             .into_par_iter()
             .with_min_len(64)
-            .map(|(i, out)| {
-                // the normal matrix and its inverse on the stack (m ≤ 9; a dynamic nalgebra
-                // matrix per row made this loop 2-3x slower, the step's largest item on
-                // moving particles)
+            .map_init(Vec::new, |fit: &mut Vec<([f64; MAX_Q], f64)>, (i, out)| {
+                let start = nl.row(i).start;
+                if let Some(dn) = copied(i) {
+                    out.copy_from_slice(&dn.coef[start * Self::S..nl.row(i).end * Self::S]);
+                    return dn.fallback_rows.binary_search(&i).ok().map(|_| i);
+                }
+                // the basis and weight of each fit point, computed once per row; the normal
+                // matrix and its inverse on the stack (m ≤ 9; a dynamic nalgebra matrix per
+                // row made this loop 2-3x slower, the step's largest item on moving
+                // particles)
+                fit.clear();
                 let mut a = [0.0; MAX_Q * MAX_Q];
                 let mut inv = [0.0; MAX_Q * MAX_Q];
-                let mut p = [0.0; MAX_Q];
                 for k in nl.row(i) {
                     let (dk, wk) = point(k, nl.indices()[k] as usize);
                     let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                    let mut p = [0.0; MAX_Q];
                     quadratic_basis_into(&z, &mut p);
                     for r in 0..m {
                         let wr = wk * p[r];
@@ -962,13 +1026,13 @@ impl<const D: usize> LsOperators<D> {
                             a[r * m + c] += wr * p[c];
                         }
                     }
+                    fit.push((p, wk));
                 }
                 for r in 0..m {
                     for c in 0..r {
                         a[r * m + c] = a[c * m + r];
                     }
                 }
-                let start = nl.row(i).start;
                 // a well-posed fit: the normal matrix is regular and not too ill-conditioned
                 let ok = invert_small(&a, m, &mut inv) && {
                     let na = a[..m * m].iter().map(|v| v.abs()).fold(0.0, f64::max);
@@ -976,24 +1040,22 @@ impl<const D: usize> LsOperators<D> {
                     na * ni < LS_MAX_CONDITION
                 };
                 if ok {
-                    for k in nl.row(i) {
-                        let (dk, wk) = point(k, nl.indices()[k] as usize);
-                        let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
-                        quadratic_basis_into(&z, &mut p);
-                        // the rows of A⁻¹p that are used: the first derivatives and the
-                        // Hessian's diagonal
-                        let y = |r: usize| -> f64 {
-                            inv[r * m..r * m + m]
-                                .iter()
-                                .zip(&p[..m])
-                                .map(|(x, q)| x * q)
-                                .sum::<f64>()
-                        };
-                        let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                        for c in 0..D {
-                            o[c] = wk * y(c) * hinv;
+                    // the rows of A⁻¹ that are used: the first derivatives, and the sum of
+                    // the Hessian's diagonal rows (the Laplacian)
+                    let mut lap = [0.0; MAX_Q];
+                    for c in 0..D {
+                        for (l, v) in lap[..m].iter_mut().zip(&inv[(D + c) * m..(D + c + 1) * m]) {
+                            *l += v;
                         }
-                        o[D] = wk * (0..D).map(|c| y(D + c)).sum::<f64>() * hinv2;
+                    }
+                    for (o, (p, wk)) in out.chunks_exact_mut(Self::S).zip(fit.iter()) {
+                        let dot = |row: &[f64]| -> f64 {
+                            row.iter().zip(&p[..m]).map(|(x, q)| x * q).sum::<f64>()
+                        };
+                        for c in 0..D {
+                            o[c] = wk * dot(&inv[c * m..c * m + m]) * hinv;
+                        }
+                        o[D] = wk * dot(&lap[..m]) * hinv2;
                     }
                     None
                 } else {

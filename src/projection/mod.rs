@@ -610,9 +610,7 @@ impl<const D: usize> ProjectionStep<D> {
         x: &[[f64; D]],
         role: &[crate::particles::Role],
     ) -> &crate::consistent::LsOperators<D> {
-        self.gradient
-            .ls_walls
-            .update(nl, vol, nl.len(), Some((x, role)));
+        self.gradient.update_walls(nl, vol, Some((x, role)));
         &self.gradient.ls_walls
     }
 
@@ -630,11 +628,10 @@ impl<const D: usize> ProjectionStep<D> {
         &crate::consistent::LsOperators<D>,
         &crate::consistent::LsOperators<D>,
     ) {
-        let n = nl.len();
         self.gradient.share_walls = !has_ghosts;
-        self.gradient.ls_walls.update(nl, vol, n, Some((x, role)));
+        self.gradient.update_walls(nl, vol, Some((x, role)));
         if has_ghosts {
-            self.gradient.ls.update(nl, vol, n, None);
+            self.gradient.update_plain(nl, vol);
         }
         (&self.gradient.ls_walls, self.gradient.plain())
     }
@@ -790,7 +787,7 @@ impl<const D: usize> ProjectionStep<D> {
         if params.laplacian == LaplacianKind::LeastSquares && params.nu > 0.0 {
             // ν(Δˡˢ − θΔh) uⁿ explicit, θΔh implicit below
             let geometry = Some((&particles.x[..], &particles.role[..]));
-            self.gradient.ls_walls.update(nl, vol, n, geometry);
+            self.gradient.update_walls(nl, vol, geometry);
             self.gradient
                 .ls_walls
                 .laplacian_vec_into(nl, &particles.u, acc);

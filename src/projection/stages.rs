@@ -101,7 +101,7 @@ pub fn divergence_into<const D: usize>(
             div_renormalised_into(nl, vol, renorm, v, out);
         }
         SourceKind::LeastSquares => {
-            ops.ls_walls.update(nl, vol, n, Some((x, role)));
+            ops.update_walls(nl, vol, Some((x, role)));
             ops.ls_walls.div_into(nl, v, out);
         }
     }
