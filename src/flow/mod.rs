@@ -333,6 +333,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             prev_energy: None,
             pair_weights: Default::default(),
         };
+        if sim.params.motion == Motion::Lagrangian {
+            sim.projection.solver.assume_moving();
+            sim.projection.viscous.assume_moving();
+        }
         sim.update_volumes()?;
         Ok(sim)
     }

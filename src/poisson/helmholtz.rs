@@ -40,6 +40,13 @@ impl HelmholtzSolver {
         Self::default()
     }
 
+    /// Tells `Auto` that the matrix values will change at every solve (moving particles), so
+    /// that it uses Jacobi-CG from the first solve instead of after two Cholesky
+    /// refactorisations have shown it.
+    pub fn assume_moving(&mut self) {
+        self.auto_factorisations = self.auto_factorisations.max(2);
+    }
+
     /// Solves `u_i − c Δh u_i = r_i` at the fluid particles for each component. `ghost_rule(j)`
     /// gives `(σ, b)` of ghost `j`; Dirichlet particles keep the values in `u`. Writes the fluid
     /// rows of `u` (other rows are left as they are).

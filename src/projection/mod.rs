@@ -497,6 +497,10 @@ pub struct ProjectionStep<const D: usize> {
     pub captured: Option<ProjectionCapture<D>>,
     /// Pressure increment `φ` of the last step (warm start for CG).
     pub phi: Vec<f64>,
+    /// The increment of the step before and that step's `Δt`: the warm start is the linear
+    /// extrapolation in time of the last two increments.
+    phi_prev: Vec<f64>,
+    dt_prev: f64,
     /// The Poisson solver and its caches.
     pub solver: PoissonSolver,
     /// The implicit viscous solver and its caches.
@@ -538,6 +542,7 @@ impl<const D: usize> ProjectionStep<D> {
     pub fn reset_pressure(&mut self, particles: &mut Particles<D>) {
         particles.p.iter_mut().for_each(|p| *p = 0.0);
         self.phi.iter_mut().for_each(|p| *p = 0.0);
+        self.phi_prev.clear();
     }
 
     /// Predictor and projection on the same neighbour list: for particles that do not move
@@ -970,6 +975,18 @@ impl<const D: usize> ProjectionStep<D> {
         if ghosts {
             boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
         }
+        // warm start: φⁿ⁻¹ + (Δt/Δtⁿ⁻¹)(φⁿ⁻¹ − φⁿ⁻²)
+        if self.phi.len() == n && self.phi_prev.len() == n && self.dt_prev > 0.0 {
+            let r = dt / self.dt_prev;
+            for (p, q) in self.phi.iter_mut().zip(self.phi_prev.iter_mut()) {
+                let last = *p;
+                *p = last + r * (last - *q);
+                *q = last;
+            }
+        } else {
+            self.phi_prev.clone_from(&self.phi);
+        }
+        self.dt_prev = dt;
         let mut capture = self.capture.then(|| ProjectionCapture {
             x: particles.x.clone(),
             vol: vol.clone(),
