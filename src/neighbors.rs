@@ -5,7 +5,8 @@
 //! paper's sums), the displacement `x_j − x_i` (minimum image on periodic axes), `r_ij²`,
 //! `w_h(r_ij)` and `w_h(r_ij)/r_ij²`.
 //!
-//! Candidates within `h + skin` are found with a kiddo k-d tree and kept while no particle has
+//! Candidates within `h + skin` are found with a uniform cell grid (default) or a kiddo k-d tree
+//! ([`Search`]: the same candidates, the grid ~2x faster, see `examples/bench`) and kept while no particle has
 //! moved more than `skin / 2` since they were found; in between, [`NeighborList::update`] only
 //! re-measures the candidate pairs. The candidate list is also the sparsity pattern of the
 //! Poisson matrix, so the pattern (and the symbolic factorisation built on it) survives as long as
@@ -96,6 +97,19 @@ impl<const D: usize> Periodicity<D> {
     }
 }
 
+/// The structure the candidate search uses. Both give the same candidate list (each row sorted
+/// by index), so the choice changes the run time only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Search {
+    /// A uniform grid of cells of side `≥ h + skin`, the particles bucketed by a counting sort;
+    /// a query scans the `3^D` cells around it. Measured ~2x faster than the k-d tree on the
+    /// moving-particle scenes (2D, 10⁴ particles with 28 neighbours each).
+    #[default]
+    CellGrid,
+    /// kiddo's immutable k-d tree (the design's crate), queried within `h + skin`.
+    KdTree,
+}
+
 /// What a neighbour list is built with.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NeighborConfig<const D: usize> {
@@ -108,6 +122,8 @@ pub struct NeighborConfig<const D: usize> {
     pub weight: Weight,
     /// Periodic axes.
     pub periodic: Periodicity<D>,
+    /// The candidate search's structure (default: the cell grid).
+    pub search: Search,
 }
 
 impl<const D: usize> NeighborConfig<D> {
@@ -118,12 +134,18 @@ impl<const D: usize> NeighborConfig<D> {
             skin,
             weight,
             periodic: Periodicity::none(),
+            search: Search::default(),
         }
     }
     /// `h = h_over_dx · dx` and `skin = skin_over_h · h`, relative to the particle spacing `dx`.
     pub fn new_relative(weight: Weight, dx: f64, h_over_dx: f64, skin_over_h: f64) -> Self {
         let h = h_over_dx * dx;
         Self::new(weight, h, skin_over_h * h)
+    }
+    /// With the given search structure.
+    pub fn with_search(mut self, search: Search) -> Self {
+        self.search = search;
+        self
     }
     /// With periodic axes.
     pub fn with_periodicity(mut self, periodic: Periodicity<D>) -> Self {
@@ -442,45 +464,36 @@ impl<const D: usize> NeighborList<D> {
         offsets.push(0usize);
         let mut indices: Vec<u32> = Vec::new();
         if n > 0 {
-            let tree: ImmutableKdTree<f64, D> =
-                ImmutableKdTree::new_from_slice(&xw).map_err(|e| InputError::Parameter {
-                    name: "positions".into(),
-                    value: n as f64,
-                    reason: format!("k-d tree construction failed: {e:?}"),
-                })?;
-            const CHUNK: usize = 1024;
-            let parts: Vec<(Vec<u32>, Vec<u32>)> = (0..n)
-                .into_par_iter()
-                .step_by(CHUNK)
-                .map(|start| {
-                    let end = (start + CHUNK).min(n);
-                    let mut scratch = tree.create_scratch::<SquaredEuclidean<f64>>();
-                    let mut counts = Vec::with_capacity(end - start);
-                    let mut idx = Vec::with_capacity((end - start) * 32);
-                    let mut row: Vec<u32> = Vec::with_capacity(64);
-                    for i in start..end {
-                        row.clear();
+            let parts = match self.config.search {
+                Search::KdTree => {
+                    let tree: ImmutableKdTree<f64, D> = ImmutableKdTree::new_from_slice(&xw)
+                        .map_err(|e| InputError::Parameter {
+                            name: "positions".into(),
+                            value: n as f64,
+                            reason: format!("k-d tree construction failed: {e:?}"),
+                        })?;
+                    candidate_rows(n, |i, row| {
+                        let mut scratch = tree.create_scratch::<SquaredEuclidean<f64>>();
                         for shift in image_shifts(&xw[i], &per, radius) {
                             let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
                             tree.query(&q)
                                 .within::<SquaredEuclidean<f64>>(r2)
                                 .unsorted()
                                 .with_scratch(&mut scratch)
-                                .visit(|nb| {
-                                    let j = nb.item;
-                                    if j as usize != i {
-                                        row.push(j);
-                                    }
-                                });
+                                .visit(|nb| row.push(nb.item));
                         }
-                        row.sort_unstable();
-                        row.dedup();
-                        counts.push(row.len() as u32);
-                        idx.extend_from_slice(&row);
-                    }
-                    (counts, idx)
-                })
-                .collect();
+                    })
+                }
+                Search::CellGrid => {
+                    let grid = CellGrid::new(&xw, radius);
+                    candidate_rows(n, |i, row| {
+                        for shift in image_shifts(&xw[i], &per, radius) {
+                            let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
+                            grid.within(&xw, &q, r2, |j| row.push(j));
+                        }
+                    })
+                }
+            };
             indices.reserve(parts.iter().map(|p| p.1.len()).sum());
             for (counts, idx) in parts {
                 for c in counts {
@@ -703,6 +716,153 @@ fn image_shifts<const D: usize>(x: &[f64; D], per: &Periodicity<D>, radius: f64)
         }
     }
     shifts
+}
+
+/// The candidate rows of particles `0..n`, in parallel chunks: `query(i, row)` pushes the
+/// candidates of `i` (with repeats and `i` itself allowed), which are then sorted, deduplicated
+/// and stripped of `i`. Returns (row lengths, indices) per chunk, in order.
+fn candidate_rows<Q>(n: usize, query: Q) -> Vec<(Vec<u32>, Vec<u32>)>
+where
+    Q: Fn(usize, &mut Vec<u32>) + Sync,
+{
+    const CHUNK: usize = 1024;
+    (0..n)
+        .into_par_iter()
+        .step_by(CHUNK)
+        .map(|start| {
+            let end = (start + CHUNK).min(n);
+            let mut counts = Vec::with_capacity(end - start);
+            let mut idx = Vec::with_capacity((end - start) * 32);
+            let mut row: Vec<u32> = Vec::with_capacity(64);
+            for i in start..end {
+                row.clear();
+                query(i, &mut row);
+                row.sort_unstable();
+                row.dedup();
+                row.retain(|&j| j as usize != i);
+                counts.push(row.len() as u32);
+                idx.extend_from_slice(&row);
+            }
+            (counts, idx)
+        })
+        .collect()
+}
+
+/// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
+/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`.
+struct CellGrid<const D: usize> {
+    lo: [f64; D],
+    inv: f64,
+    dims: [usize; D],
+    start: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl<const D: usize> CellGrid<D> {
+    /// Cells of side at least `radius` (larger when the box would need more than ~4 cells per
+    /// point: a few far-away points must not blow the grid up).
+    fn new(x: &[[f64; D]], radius: f64) -> Self {
+        let mut lo = [f64::INFINITY; D];
+        let mut hi = [f64::NEG_INFINITY; D];
+        for p in x {
+            for k in 0..D {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        let mut side = radius;
+        let cells = |side: f64| -> ([usize; D], f64) {
+            let dims: [usize; D] =
+                std::array::from_fn(|k| ((hi[k] - lo[k]) / side).floor().min(1e9) as usize + 1);
+            (dims, dims.iter().map(|&d| d as f64).product())
+        };
+        let limit = 4.0 * x.len() as f64 + 64.0;
+        let mut dims = cells(side).0;
+        while cells(side).1 > limit {
+            side *= 2.0;
+            dims = cells(side).0;
+        }
+        let inv = 1.0 / side;
+        let total: usize = dims.iter().product();
+        let cell_of = |p: &[f64; D]| -> usize {
+            let mut c = 0;
+            for k in (0..D).rev() {
+                let i = (((p[k] - lo[k]) * inv) as usize).min(dims[k] - 1);
+                c = c * dims[k] + i;
+            }
+            c
+        };
+        let cell: Vec<u32> = x.par_iter().map(|p| cell_of(p) as u32).collect();
+        let mut start = vec![0u32; total + 1];
+        for &c in &cell {
+            start[c as usize + 1] += 1;
+        }
+        for c in 0..total {
+            start[c + 1] += start[c];
+        }
+        let mut fill = start.clone();
+        let mut items = vec![0u32; x.len()];
+        for (i, &c) in cell.iter().enumerate() {
+            items[fill[c as usize] as usize] = i as u32;
+            fill[c as usize] += 1;
+        }
+        CellGrid {
+            lo,
+            inv,
+            dims,
+            start,
+            items,
+        }
+    }
+
+    /// Calls `visit(j)` for every point `j` of `x` with `|x_j − q|² ≤ r2`.
+    fn within(&self, x: &[[f64; D]], q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
+        let r = r2.sqrt();
+        let mut a = [0usize; D];
+        let mut b = [0usize; D];
+        for k in 0..D {
+            let lo = ((q[k] - r - self.lo[k]) * self.inv).floor();
+            let hi = ((q[k] + r - self.lo[k]) * self.inv).floor();
+            if hi < 0.0 || lo > (self.dims[k] - 1) as f64 {
+                return;
+            }
+            a[k] = lo.max(0.0) as usize;
+            b[k] = (hi as usize).min(self.dims[k] - 1);
+        }
+        // odometer over the cells a..=b, axis 0 fastest (the grid's row-major order)
+        let mut c = a;
+        loop {
+            let mut cell = 0;
+            for k in (0..D).rev() {
+                cell = cell * self.dims[k] + c[k];
+            }
+            let s = self.start[cell] as usize;
+            let e = self.start[cell + 1] as usize;
+            for &j in &self.items[s..e] {
+                let p = &x[j as usize];
+                let mut d2 = 0.0;
+                for k in 0..D {
+                    let t = p[k] - q[k];
+                    d2 += t * t;
+                }
+                if d2 <= r2 {
+                    visit(j);
+                }
+            }
+            let mut k = 0;
+            loop {
+                if k == D {
+                    return;
+                }
+                if c[k] < b[k] {
+                    c[k] += 1;
+                    break;
+                }
+                c[k] = a[k];
+                k += 1;
+            }
+        }
+    }
 }
 
 /// Splits `v` into consecutive mutable pieces `v[bounds[c]..bounds[c + 1]]`.

@@ -1,4 +1,4 @@
-//! The kiddo-backed neighbour list against brute force: the same pairs (strictly `r < h`, as
+//! The neighbour list (cell grid and kiddo k-d tree searches) against brute force: the same pairs (strictly `r < h`, as
 //! the paper's sums), the same cached pair data, with periodic boxes, pairs placed exactly at
 //! `h`, the skin's reuse rule, and the input errors.
 
@@ -7,7 +7,9 @@ mod common;
 use common::{dirichlet_box, random_cloud, Spec};
 use gpm::error::InputError;
 use gpm::kernel::{Kernel, Weight};
-use gpm::neighbors::{NeighborConfig, NeighborList, Periodicity};
+use gpm::neighbors::{NeighborConfig, NeighborList, Periodicity, Search};
+
+const SEARCHES: [Search; 2] = [Search::CellGrid, Search::KdTree];
 
 /// One pair of the independent reference list.
 #[derive(Clone, Copy, Debug)]
@@ -113,18 +115,21 @@ fn assert_symmetric<const D: usize>(nl: &NeighborList<D>) {
 }
 
 #[test]
-fn kiddo_equals_brute_force_on_random_sets_2d() {
+fn searches_equal_brute_force_on_random_sets_2d() {
     for (seed, n, h, weight) in [
         (1u64, 3000usize, 0.03, Weight::WendlandC2),
         (2, 1500, 0.05, Weight::CubicSpline),
         (3, 500, 0.2, Weight::Poly { p: 1, m: 3 }),
     ] {
         let x = random_cloud::<2>(n, seed);
-        for skin in [0.0, 0.3 * h] {
-            let cfg = NeighborConfig::new(weight, h, skin);
+        for (skin, search) in [0.0, 0.3 * h]
+            .into_iter()
+            .flat_map(|s| SEARCHES.map(|q| (s, q)))
+        {
+            let cfg = NeighborConfig::new(weight, h, skin).with_search(search);
             let nl = NeighborList::build(cfg, &x).unwrap();
             let want = reference(&cfg, &x);
-            assert_same(&nl, &want, "2D kiddo");
+            assert_same(&nl, &want, &format!("2D {search:?}"));
             assert_symmetric(&nl);
             let bf = NeighborList::brute_force(cfg, &x).unwrap();
             assert_same(&bf, &want, "2D brute_force");
@@ -133,24 +138,27 @@ fn kiddo_equals_brute_force_on_random_sets_2d() {
 }
 
 #[test]
-fn kiddo_equals_brute_force_on_random_sets_3d() {
+fn searches_equal_brute_force_on_random_sets_3d() {
     for (seed, n, h, weight) in [
         (4u64, 2000usize, 0.12, Weight::WendlandC4),
         (5, 800, 0.25, Weight::CubicSpline),
     ] {
         let x = random_cloud::<3>(n, seed);
-        for skin in [0.0, 0.2 * h] {
-            let cfg = NeighborConfig::new(weight, h, skin);
+        for (skin, search) in [0.0, 0.2 * h]
+            .into_iter()
+            .flat_map(|s| SEARCHES.map(|q| (s, q)))
+        {
+            let cfg = NeighborConfig::new(weight, h, skin).with_search(search);
             let nl = NeighborList::build(cfg, &x).unwrap();
             let want = reference(&cfg, &x);
-            assert_same(&nl, &want, "3D kiddo");
+            assert_same(&nl, &want, &format!("3D {search:?}"));
             assert_symmetric(&nl);
         }
     }
 }
 
 #[test]
-fn kiddo_equals_brute_force_on_lattice_families() {
+fn the_list_equals_brute_force_on_lattice_families() {
     // lattices put many pairs at the same distance; jitter breaks ties
     for jit in [0.0, 0.3, 0.45] {
         let f = dirichlet_box::<2>(Spec::lattice(12, 2.5, Weight::WendlandC2).jittered(jit, 7));
@@ -166,9 +174,12 @@ fn periodic_boxes_match_brute_force() {
     let x = random_cloud::<2>(1200, 11);
     let cfg = NeighborConfig::new(Weight::WendlandC2, 0.06, 0.01)
         .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
-    let nl = NeighborList::build(cfg, &x).unwrap();
     let want = reference(&cfg, &x);
-    assert_same(&nl, &want, "2D periodic");
+    for search in SEARCHES {
+        let nl = NeighborList::build(cfg.with_search(search), &x).unwrap();
+        assert_same(&nl, &want, &format!("2D periodic {search:?}"));
+    }
+    let nl = NeighborList::build(cfg, &x).unwrap();
     assert_symmetric(&nl);
     // some pairs really cross the faces
     let crossing = (0..nl.len())
@@ -570,4 +581,19 @@ fn neighbor_stats_match_brute_force() {
     let mut exp = [best.1, best.2];
     exp.sort_unstable();
     assert_eq!(got, exp);
+}
+
+#[test]
+fn a_far_outlier_does_not_blow_the_cell_grid_up() {
+    // one particle 10⁶ radii away: the grid coarsens its cells instead of allocating 10¹² of them
+    let mut x = random_cloud::<2>(800, 21);
+    x.push([1.0e4, -3.0e4]);
+    x.push([1.0e4 + 0.01, -3.0e4]);
+    for search in SEARCHES {
+        let cfg = NeighborConfig::new(Weight::WendlandC2, 0.05, 0.01).with_search(search);
+        let nl = NeighborList::build(cfg, &x).unwrap();
+        assert_same(&nl, &reference(&cfg, &x), &format!("outlier {search:?}"));
+        // the far pair found each other
+        assert_eq!(nl.row(800).len(), 1, "{search:?}");
+    }
 }

@@ -1058,6 +1058,8 @@ impl<const D: usize> From<&NeighborConfig<D>> for NeighborSpec {
             skin,
             weight,
             periodic,
+            // the candidates, and so every result, are the same with either structure
+            search: _,
         } = *c;
         NeighborSpec {
             h,
