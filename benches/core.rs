@@ -14,7 +14,7 @@
 //! differences.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use gpm::neighbors::{NeighborConfig, NeighborList};
+use gpm::neighbors::{NeighborConfig, NeighborList, Search};
 use gpm::particles::Role;
 use gpm::poisson::iterative::pcg;
 use gpm::poisson::{Assembly, Direct};
@@ -49,9 +49,12 @@ fn bench_size<const D: usize>(c: &mut Criterion, name: &str, side: usize, direct
     g.sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(3));
-    g.bench_function("neighbors/search", |b| {
-        b.iter(|| NeighborList::build(p.config, &p.x).unwrap())
-    });
+    for (label, search) in [("grid", Search::CellGrid), ("kdtree", Search::KdTree)] {
+        let config = p.config.with_search(search);
+        g.bench_function(BenchmarkId::new("neighbors/search", label), |b| {
+            b.iter(|| NeighborList::build(config, &p.x).unwrap())
+        });
+    }
     let mut a = Assembly::default();
     a.update_pattern(&p.nl, &p.role);
     g.bench_function("assembly/pattern", |b| {
