@@ -113,42 +113,60 @@ impl Assembly {
         // pairs within h of the current pair data
         let (co, ci) = nl.pattern();
         let unknown = &self.unknown;
-        let rows: Vec<Vec<u32>> = self
-            .particle
-            .par_iter()
-            .with_min_len(256)
-            .map(|&p| {
-                let p = p as usize;
-                let candidates: Box<dyn Iterator<Item = u32>> = if within_h {
-                    Box::new(
-                        nl.row(p)
-                            .filter(|&k| nl.w()[k] > 0.0)
-                            .map(|k| nl.indices()[k]),
-                    )
-                } else {
-                    Box::new(ci[co[p]..co[p + 1]].iter().copied())
-                };
-                let mut cols: Vec<u32> = candidates
-                    .filter_map(|j| alias(role, j as usize))
-                    .filter(|&s| s != p)
-                    .map(|s| unknown[s])
-                    .collect();
-                cols.push(unknown[p]);
-                cols.sort_unstable();
-                cols.dedup();
-                cols
+        let particle = &self.particle;
+        // rows in chunks: (row lengths, columns, diagonal position within the row) per chunk
+        const CHUNK: usize = 256;
+        let parts: Vec<(Vec<u32>, Vec<u32>, Vec<u32>)> = (0..particle.len())
+            .into_par_iter()
+            .step_by(CHUNK)
+            .map(|start| {
+                let end = (start + CHUNK).min(particle.len());
+                let mut lens = Vec::with_capacity(end - start);
+                let mut diag = Vec::with_capacity(end - start);
+                let mut cols = Vec::with_capacity((end - start) * 32);
+                let mut row: Vec<u32> = Vec::with_capacity(64);
+                for u in start..end {
+                    let p = particle[u] as usize;
+                    row.clear();
+                    let mut add = |j: u32| {
+                        if let Some(s) = alias(role, j as usize) {
+                            if s != p {
+                                row.push(unknown[s]);
+                            }
+                        }
+                    };
+                    if within_h {
+                        for k in nl.row(p) {
+                            if nl.w()[k] > 0.0 {
+                                add(nl.indices()[k]);
+                            }
+                        }
+                    } else {
+                        ci[co[p]..co[p + 1]].iter().for_each(|&j| add(j));
+                    }
+                    row.push(u as u32);
+                    row.sort_unstable();
+                    row.dedup();
+                    let pos = row.binary_search(&(u as u32)).expect("diagonal in pattern");
+                    lens.push(row.len() as u32);
+                    diag.push(pos as u32);
+                    cols.extend_from_slice(&row);
+                }
+                (lens, cols, diag)
             })
             .collect();
-        self.offsets = Vec::with_capacity(rows.len() + 1);
+        self.offsets = Vec::with_capacity(particle.len() + 1);
         self.offsets.push(0);
         self.cols.clear();
+        self.cols.reserve(parts.iter().map(|p| p.1.len()).sum());
         self.diag.clear();
-        for (u, r) in rows.iter().enumerate() {
-            let base = self.cols.len();
-            let pos = r.binary_search(&(u as u32)).expect("diagonal in pattern");
-            self.diag.push(base + pos);
-            self.cols.extend_from_slice(r);
-            self.offsets.push(self.cols.len());
+        for (lens, cols, diag) in parts {
+            for (len, pos) in lens.into_iter().zip(diag) {
+                let base = *self.offsets.last().expect("offsets start at 0");
+                self.diag.push(base + pos as usize);
+                self.offsets.push(base + len as usize);
+            }
+            self.cols.extend_from_slice(&cols);
         }
         self.values = vec![0.0; self.cols.len()];
         self.key = Some(key);
