@@ -288,6 +288,11 @@ impl<const D: usize> NeighborList<D> {
     pub fn kernel(&self) -> &Kernel<D> {
         &self.kernel
     }
+    /// The positions at the last candidate search (each within `skin / 2` of the positions
+    /// the list was last measured at; empty before the first search).
+    pub fn search_positions(&self) -> &[[f64; D]] {
+        &self.x_ref
+    }
     /// Influence radius.
     pub fn h(&self) -> f64 {
         self.config.h

@@ -498,3 +498,54 @@ fn a_lagrangian_run_gives_the_same_bits_on_one_or_two_threads() {
         assert!(pb(&one.2) == pb(&other.2), "run {k}: pressures differ");
     }
 }
+
+#[test]
+fn the_poisson_factor_prepared_beside_the_predictor_gives_the_same_run() {
+    // the driver factorises the Poisson matrix on one thread while the predictor runs
+    // (`overlap_solve_setup`); the projection must then use exactly that factor: the same bits
+    // as a run that factorises inside the solve, and every step reports one numeric
+    // factorisation (the work done ahead, not a reuse)
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 20;
+        c.motion = Motion::Lagrangian;
+        c.t_end = 0.5;
+        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
+    });
+    let run = |overlap: bool| {
+        let mut infos = Vec::new();
+        let run = run_scene(
+            &cfg,
+            |sim| sim.projection.overlap_solve_setup = overlap,
+            |rep, _| {
+                infos.push(rep.projection.solve);
+                Ok(ControlFlow::Continue(()))
+            },
+        )
+        .expect("a short Lagrangian cavity run");
+        let p = &run.sim.particles;
+        (p.u.clone(), p.p.clone(), infos)
+    };
+    let (u0, p0, serial) = run(false);
+    let (u1, p1, ahead) = run(true);
+    assert!(ahead.len() >= 10, "{} steps", ahead.len());
+    let bits = |v: &[[f64; 2]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(bits(&u0) == bits(&u1), "velocities differ");
+    assert!(
+        p0.iter()
+            .map(|x| x.to_bits())
+            .eq(p1.iter().map(|x| x.to_bits())),
+        "pressures differ"
+    );
+    for (k, (s, a)) in serial.iter().zip(&ahead).enumerate() {
+        assert_eq!(a.solver, gpm::poisson::SolverKind::Cholesky, "step {k}");
+        assert_eq!(s.reused_numeric, a.reused_numeric, "step {k}");
+        assert!(
+            !a.reused_numeric,
+            "step {k}: the moving matrix was not refactorised"
+        );
+        assert!(
+            a.numeric_seconds > 0.0,
+            "step {k}: no factorisation time reported"
+        );
+    }
+}

@@ -867,3 +867,44 @@ fn pattern_within_h_drops_the_skin_pairs_and_follows_moving_particles() {
     assert!(max_diff(&w1, &c1) < 1e-10, "{}", max_diff(&w1, &c1));
     assert!(max_diff(&w1, &w0) > 1e-6, "the move changed the solution");
 }
+
+#[test]
+fn nested_dissection_orders_every_unknown_once_and_factorises_like_amd() {
+    use gpm::poisson::direct::nested_dissection;
+    // a jittered 2D box: the ordering is a permutation, and the Cholesky solve with it (the
+    // solver's moving-particle path) gives the AMD solve's solution
+    let f = common::dirichlet_box::<2>(
+        common::Spec::lattice(30, 3.0, gpm::kernel::Weight::WendlandC2).jittered(0.3, 5),
+    );
+    let mut a = gpm::poisson::Assembly::default();
+    a.update_pattern(&f.nl, &f.role);
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    let n = a.n();
+    let coords: Vec<f64> = a.particle.iter().flat_map(|&p| f.x[p as usize]).collect();
+    let order = nested_dissection(&coords, 2, &a.offsets, &a.cols);
+    let mut seen = vec![false; n];
+    for &o in &order {
+        assert!(!seen[o], "unknown {o} ordered twice");
+        seen[o] = true;
+    }
+    assert!(seen.iter().all(|&s| s), "an unknown was left out");
+    let b: Vec<f64> = (0..n).map(|u| ((u * 37) % 11) as f64 - 5.0).collect();
+    let solve = |coordinates: Option<(Vec<f64>, usize)>| {
+        let mut d = gpm::poisson::Direct::default();
+        d.coordinates = coordinates;
+        let mut x = vec![0.0; n];
+        d.solve(&a, &[], &b, &mut x, true, true).unwrap();
+        x
+    };
+    let amd = solve(None);
+    let nd = solve(Some((coords, 2)));
+    let scale = amd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let diff = amd
+        .iter()
+        .zip(&nd)
+        .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
+    assert!(
+        diff <= 1e-10 * scale,
+        "solutions differ by {diff:e} (scale {scale:e})"
+    );
+}

@@ -333,6 +333,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             prev_energy: None,
             pair_weights: Default::default(),
         };
+        // predict and project act on the same configuration in every step of the driver
+        sim.projection.overlap_solve_setup = true;
         if sim.params.motion == Motion::Lagrangian {
             sim.projection.solver.assume_moving();
             sim.projection.viscous.assume_moving();

@@ -34,6 +34,10 @@ pub struct Direct {
     fmem: Option<MemBuffer>,
     smem: Option<MemBuffer>,
     has_factor: bool,
+    /// Coordinates of the unknowns (`dim` per unknown): when set (and of the right length),
+    /// the fill-reducing ordering is a nested dissection guided by them
+    /// ([`nested_dissection`]) instead of AMD.
+    pub coordinates: Option<(Vec<f64>, usize)>,
     /// Symbolic analyses performed so far.
     pub symbolic_count: u64,
     /// Numeric factorisations performed so far.
@@ -81,6 +85,42 @@ impl Direct {
             b.len() == a.n() && x.len() == a.n(),
             "b and x must have one entry per unknown"
         );
+        let mut info = self.factor(a, pinned, reuse_symbolic, reuse_numeric)?;
+        let symbolic = self.symbolic.as_ref().expect("symbolic factor");
+        let t2 = std::time::Instant::now();
+        let nr = self.col_ptr.len() - 1;
+        let mut rhs = vec![0.0; nr];
+        for (u, &r) in self.reduced.iter().enumerate() {
+            if r != u32::MAX {
+                rhs[r as usize] = b[u];
+            }
+        }
+        let llt = LltRef::<usize, f64>::new(symbolic, &self.l_values);
+        let smem = self.smem.as_mut().expect("solve scratch");
+        llt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut rhs, nr, 1),
+            Par::Seq,
+            MemStack::new(smem),
+        );
+        for (u, &r) in self.reduced.iter().enumerate() {
+            x[u] = if r == u32::MAX { 0.0 } else { rhs[r as usize] };
+        }
+        info.solve_seconds = t2.elapsed().as_secs_f64();
+        Ok(info)
+    }
+
+    /// The factor of `K` with the unknowns in `pinned` removed, brought up to date: the
+    /// symbolic analysis redone when the pattern or the pinned set changed, the numeric
+    /// factorisation when the values changed. [`Self::solve`] calls it first, so a factor
+    /// prepared ahead (concurrently with other work) is found current there.
+    pub fn factor(
+        &mut self,
+        a: &Assembly,
+        pinned: &[u32],
+        reuse_symbolic: bool,
+        reuse_numeric: bool,
+    ) -> Result<DirectReuse, SolveError> {
         let mut info = DirectReuse::default();
         let key = (a.pattern_id(), pinned.to_vec());
         let t0 = std::time::Instant::now();
@@ -89,10 +129,32 @@ impl Direct {
             let nr = self.col_ptr.len() - 1;
             let sym =
                 SymbolicSparseColMatRef::new_checked(nr, nr, &self.col_ptr, None, &self.row_idx);
+            let order = self.coordinates.as_ref().and_then(|(c, dim)| {
+                (c.len() == dim * a.n()).then(|| {
+                    // the order of every unknown, then the pinned ones dropped
+                    let full = nested_dissection(c, *dim, &a.offsets, &a.cols);
+                    let fwd: Vec<usize> = full
+                        .into_iter()
+                        .filter(|&u| self.reduced[u] != u32::MAX)
+                        .map(|u| self.reduced[u] as usize)
+                        .collect();
+                    let mut inv = vec![0usize; fwd.len()];
+                    for (k, &o) in fwd.iter().enumerate() {
+                        inv[o] = k;
+                    }
+                    (fwd, inv)
+                })
+            });
+            let ordering = match &order {
+                Some((fwd, inv)) => {
+                    SymmetricOrdering::Custom(faer::perm::PermRef::new_checked(fwd, inv, nr))
+                }
+                None => SymmetricOrdering::Amd,
+            };
             let symbolic = factorize_symbolic_cholesky(
                 sym,
                 Side::Lower,
-                SymmetricOrdering::Amd,
+                ordering,
                 CholeskySymbolicParams::default(),
             )
             .map_err(|e| SolveError::Backend(format!("symbolic Cholesky: {e:?}")))?;
@@ -163,26 +225,6 @@ impl Direct {
             self.numeric_count += 1;
             info.numeric_seconds = t1.elapsed().as_secs_f64();
         }
-        let t2 = std::time::Instant::now();
-        let nr = self.col_ptr.len() - 1;
-        let mut rhs = vec![0.0; nr];
-        for (u, &r) in self.reduced.iter().enumerate() {
-            if r != u32::MAX {
-                rhs[r as usize] = b[u];
-            }
-        }
-        let llt = LltRef::<usize, f64>::new(symbolic, &self.l_values);
-        let smem = self.smem.as_mut().expect("solve scratch");
-        llt.solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(&mut rhs, nr, 1),
-            Par::Seq,
-            MemStack::new(smem),
-        );
-        for (u, &r) in self.reduced.iter().enumerate() {
-            x[u] = if r == u32::MAX { 0.0 } else { rhs[r as usize] };
-        }
-        info.solve_seconds = t2.elapsed().as_secs_f64();
         Ok(info)
     }
 
@@ -221,4 +263,98 @@ impl Direct {
         self.values = vec![0.0; self.gather.len()];
         self.factored.clear();
     }
+}
+
+/// A fill-reducing ordering of the unknowns of a symmetric pattern (`offsets`/`cols`, CSR,
+/// both triangles) from coordinates of the unknowns (`dim` each): nested dissection, the
+/// coordinates choosing the cuts and the pattern the separators. A set of unknowns is split at
+/// the median of the longer side of its bounding box; the unknowns of the lower half coupled
+/// to one of the upper half form the separator, ordered after both halves, which are ordered
+/// the same way down to blocks of at most `LEAF` unknowns. Any ordering factorises the same
+/// matrix; this one only decides the fill. Returns `order[new] = old`.
+pub fn nested_dissection(
+    coords: &[f64],
+    dim: usize,
+    offsets: &[usize],
+    cols: &[u32],
+) -> Vec<usize> {
+    const LEAF: usize = 16;
+    let n = offsets.len().saturating_sub(1);
+    assert_eq!(coords.len(), n * dim, "one point per unknown");
+    let mut order = Vec::with_capacity(n);
+    let mut idx: Vec<usize> = (0..n).collect();
+    let mut mark = vec![0u32; n];
+    let mut stamp = 0u32;
+    struct Ctx<'a> {
+        coords: &'a [f64],
+        dim: usize,
+        offsets: &'a [usize],
+        cols: &'a [u32],
+    }
+    fn recurse(
+        idx: &mut [usize],
+        c: &Ctx,
+        mark: &mut [u32],
+        stamp: &mut u32,
+        out: &mut Vec<usize>,
+    ) {
+        let dim = c.dim;
+        if idx.len() <= LEAF || dim == 0 {
+            out.extend_from_slice(idx);
+            return;
+        }
+        let mut lo = vec![f64::INFINITY; dim];
+        let mut hi = vec![f64::NEG_INFINITY; dim];
+        for &i in idx.iter() {
+            for a in 0..dim {
+                let v = c.coords[i * dim + a];
+                lo[a] = lo[a].min(v);
+                hi[a] = hi[a].max(v);
+            }
+        }
+        let axis = (0..dim)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let key = |i: &usize| c.coords[*i * dim + axis];
+        let mid = idx.len() / 2;
+        idx.select_nth_unstable_by(mid, |a, b| key(a).total_cmp(&key(b)));
+        // idx[..mid] lower half, idx[mid..] upper half: mark the upper half
+        *stamp += 1;
+        let s = *stamp;
+        for &i in idx[mid..].iter() {
+            mark[i] = s;
+        }
+        // the lower half's unknowns coupled to the upper half go to the end of the lower half
+        let (lower, upper) = idx.split_at_mut(mid);
+        let mut keep = 0;
+        for k in 0..lower.len() {
+            let i = lower[k];
+            let coupled = c.cols[c.offsets[i]..c.offsets[i + 1]]
+                .iter()
+                .any(|&j| mark[j as usize] == s);
+            if !coupled {
+                lower.swap(keep, k);
+                keep += 1;
+            }
+        }
+        if keep == 0 {
+            // no separation possible (the lower half is all separator): one block
+            out.extend_from_slice(lower);
+            out.extend_from_slice(upper);
+            return;
+        }
+        let (inner, sep) = lower.split_at_mut(keep);
+        let sep: Vec<usize> = sep.to_vec();
+        recurse(inner, c, mark, stamp, out);
+        recurse(upper, c, mark, stamp, out);
+        out.extend_from_slice(&sep);
+    }
+    let ctx = Ctx {
+        coords,
+        dim,
+        offsets,
+        cols,
+    };
+    recurse(&mut idx, &ctx, &mut mark, &mut stamp, &mut order);
+    order
 }

@@ -272,6 +272,11 @@ pub struct PoissonSolver {
     x: Vec<f64>,
     /// `Auto`: numeric Cholesky factorisations so far (the first one is always needed).
     auto_factorisations: u32,
+    /// The factorisation [`Self::prepare`] did for the next solve (reported by that solve).
+    ahead: Option<direct::DirectReuse>,
+    /// Set by [`Self::assume_moving`]: the Cholesky ordering is a nested dissection of the
+    /// particles' positions ([`direct::nested_dissection`]) instead of AMD.
+    moving: bool,
 }
 
 impl PoissonSolver {
@@ -283,9 +288,88 @@ impl PoissonSolver {
     /// Tells `Auto` that the matrix values will change at every solve (moving particles), so
     /// that it applies its moving-particle rule from the first solve instead of after two
     /// refactorisations have shown it (two Cholesky factorisations saved: 0.3 s of a
-    /// Lagrangian Taylor–Green run at n = 100).
+    /// Lagrangian Taylor–Green run at n = 100), and that the Cholesky ordering should be cheap
+    /// to recompute (nested dissection, see [`direct::nested_dissection`]).
     pub fn assume_moving(&mut self) {
         self.auto_factorisations = self.auto_factorisations.max(2);
+        self.moving = true;
+    }
+
+    /// Sets up the solve of [`Self::solve`] for these inputs ahead of the right side: the matrix
+    /// assembled and, when the solver resolves to Cholesky, factorised. The next `solve` with
+    /// the same matrix inputs then finds the factor current (and reports the work done here).
+    /// [`crate::flow::Simulation`] runs it concurrently with the predictor, which does not
+    /// touch the Poisson matrix.
+    pub fn prepare<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        components: &Components,
+        params: &SolveParams,
+    ) -> Result<(), SolveError> {
+        self.ahead = None;
+        self.assemble(nl, vol, role, params)?;
+        if self.kind::<D>(params) == SolverKind::Cholesky {
+            let (floating, members) = floating_members(&self.assembly, components);
+            let pinned = pinned_unknowns(&members, &floating);
+            let r = self.direct.factor(
+                &self.assembly,
+                &pinned,
+                params.reuse_symbolic,
+                params.reuse_numeric,
+            )?;
+            count_refactorisation(&mut self.auto_factorisations, params, &r);
+            self.ahead = Some(r);
+        }
+        Ok(())
+    }
+
+    /// The matrix brought up to date with the pair data, volumes and roles; true when the
+    /// pattern was rebuilt.
+    fn assemble<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        params: &SolveParams,
+    ) -> Result<bool, SolveError> {
+        self.assembly.within_h = params.pattern_within_h;
+        let pattern_rebuilt = self.assembly.update_pattern(nl, role);
+        // moving particles: a new pattern every step, so the ordering's cost counts; nested
+        // dissection on the particles' positions costs half of AMD's analysis for ~4 % more
+        // fill (Lagrangian cavity n = 50: symbolic 2.8 -> 1.4 ms, numeric 2.9 -> 2.6 ms).
+        // Fixed particles keep AMD (one analysis per run, and the same bits as before).
+        let xs = nl.search_positions();
+        if self.moving && pattern_rebuilt && xs.len() == role.len() {
+            let coords: Vec<f64> = self
+                .assembly
+                .particle
+                .iter()
+                .flat_map(|&p| xs[p as usize])
+                .collect();
+            self.direct.coordinates = Some((coords, D));
+        }
+        self.assembly.reuse_values = params.reuse_values;
+        self.assembly.fill_values(nl, vol, role)?;
+        Ok(pattern_rebuilt)
+    }
+
+    /// The solver for the assembled matrix: `params.resolve`, except that `Auto` leaves
+    /// Cholesky for AMG once refactorisations show the values change from step to step.
+    fn kind<const D: usize>(&self, params: &SolveParams) -> SolverKind {
+        let n = self.assembly.n();
+        let kind = params.resolve(D, n);
+        if params.solver == SolverKind::Auto
+            && kind == SolverKind::Cholesky
+            && self.auto_factorisations >= 2
+            && n > params.moving_direct_limit
+        {
+            // the matrix values change from step to step (moving particles): refactorising
+            // costs 2–12x an AMG-CG solve (examples/bench, 2D 10⁴ and 10⁵ moving)
+            return SolverKind::Amg;
+        }
+        kind
     }
 
     /// Solves `−Δh φ_i = rhs_i` for the fluid particles `i`.
@@ -349,10 +433,8 @@ impl PoissonSolver {
         params: &SolveParams,
     ) -> Result<SolveInfo, SolveError> {
         let t0 = Instant::now();
-        self.assembly.within_h = params.pattern_within_h;
-        let pattern_rebuilt = self.assembly.update_pattern(nl, role);
-        self.assembly.reuse_values = params.reuse_values;
-        self.assembly.fill_values(nl, vol, role)?;
+        let ahead = self.ahead.take();
+        let pattern_rebuilt = self.assemble(nl, vol, role, params)?;
         let a = &self.assembly;
         let n = a.n();
         let mut info = SolveInfo {
@@ -370,16 +452,9 @@ impl PoissonSolver {
             }
         }
         // floating components: members (as unknowns), right side projected to zero sum
-        let floating = components.floating();
+        let (floating, members) = floating_members(a, components);
         info.floating = floating.len();
-        let mut members: Vec<Vec<u32>> = vec![Vec::new(); components.len()];
         if !floating.is_empty() {
-            for (u, &p) in a.particle.iter().enumerate() {
-                let c = components.label[p as usize];
-                if c != u32::MAX && !components.anchored[c as usize] {
-                    members[c as usize].push(u as u32);
-                }
-            }
             for &c in &floating {
                 let m = &members[c];
                 let sum_b: f64 = m.iter().map(|&u| self.b[u as usize]).sum();
@@ -399,25 +474,13 @@ impl PoissonSolver {
         }
         info.assemble_seconds = t0.elapsed().as_secs_f64();
 
-        let mut kind = params.resolve(D, n);
-        if params.solver == SolverKind::Auto
-            && kind == SolverKind::Cholesky
-            && self.auto_factorisations >= 2
-            && n > params.moving_direct_limit
-        {
-            // the matrix values change from step to step (moving particles): refactorising
-            // costs 2–12x an AMG-CG solve (examples/bench, 2D 10⁴ and 10⁵ moving)
-            kind = SolverKind::Amg;
-        }
+        let kind = self.kind::<D>(params);
         info.solver = kind;
         self.x.resize(n, 0.0);
         match kind {
             SolverKind::Cholesky => {
-                let pinned: Vec<u32> = floating
-                    .iter()
-                    .filter_map(|&c| members[c].first().copied())
-                    .collect();
-                let r = self.direct.solve(
+                let pinned = pinned_unknowns(&members, &floating);
+                let mut r = self.direct.solve(
                     a,
                     &pinned,
                     &self.b,
@@ -425,12 +488,18 @@ impl PoissonSolver {
                     params.reuse_symbolic,
                     params.reuse_numeric,
                 )?;
+                match ahead {
+                    // the factor prepared ahead was the one used: report its work
+                    Some(f) if r.symbolic && r.numeric => {
+                        r.symbolic = f.symbolic;
+                        r.numeric = f.numeric;
+                        r.symbolic_seconds = f.symbolic_seconds;
+                        r.numeric_seconds = f.numeric_seconds;
+                    }
+                    _ => count_refactorisation(&mut self.auto_factorisations, params, &r),
+                }
                 info.reused_symbolic = r.symbolic;
                 info.reused_numeric = r.numeric;
-                // a refactorisation because the values changed (not because reuse is off)
-                if params.solver == SolverKind::Auto && params.reuse_numeric && !r.numeric {
-                    self.auto_factorisations += 1;
-                }
                 info.symbolic_seconds = r.symbolic_seconds;
                 info.numeric_seconds = r.numeric_seconds;
                 info.solve_seconds = r.solve_seconds;
@@ -518,6 +587,38 @@ impl PoissonSolver {
             });
         }
         Ok(info)
+    }
+}
+
+/// The floating components of `components` and, per component, its member unknowns (filled
+/// for the floating ones only).
+fn floating_members(a: &Assembly, components: &Components) -> (Vec<usize>, Vec<Vec<u32>>) {
+    let floating = components.floating();
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); components.len()];
+    if !floating.is_empty() {
+        for (u, &p) in a.particle.iter().enumerate() {
+            let c = components.label[p as usize];
+            if c != u32::MAX && !components.anchored[c as usize] {
+                members[c as usize].push(u as u32);
+            }
+        }
+    }
+    (floating, members)
+}
+
+/// One unknown fixed to zero per floating component (its first member): the SPD system the
+/// direct solver factorises.
+fn pinned_unknowns(members: &[Vec<u32>], floating: &[usize]) -> Vec<u32> {
+    floating
+        .iter()
+        .filter_map(|&c| members[c].first().copied())
+        .collect()
+}
+
+/// Counts a refactorisation caused by changed values (not by reuse switched off) for `Auto`.
+fn count_refactorisation(count: &mut u32, params: &SolveParams, r: &direct::DirectReuse) {
+    if params.solver == SolverKind::Auto && params.reuse_numeric && !r.numeric {
+        *count += 1;
     }
 }
 

@@ -497,6 +497,13 @@ pub struct ProjectionStep<const D: usize> {
     pub captured: Option<ProjectionCapture<D>>,
     /// Pressure increment `φ` of the last step (warm start for CG).
     pub phi: Vec<f64>,
+    /// [`predict`](Self::predict) also assembles and (Cholesky) factorises the Poisson matrix
+    /// of its configuration, on one thread while the predictor runs on the others
+    /// ([`crate::poisson::PoissonSolver::prepare`]), so that [`project`](Self::project) on the same
+    /// configuration finds the factor ready. Set it when predict and project see the same
+    /// particles (the [`crate::flow::Simulation`] driver does; a Lagrangian loop that moves
+    /// its particles between the two would waste the work). Default false.
+    pub overlap_solve_setup: bool,
     /// The increment of the step before and that step's `Δt`: the warm start is the linear
     /// extrapolation in time of the last two increments.
     phi_prev: Vec<f64>,
@@ -770,12 +777,72 @@ impl<const D: usize> ProjectionStep<D> {
             checks::check_field("accel", extra, &particles.role, false)?;
         }
         let plan = ProjectionPlan::new(params);
-        if plan.viscous_implicit {
+        let mut ahead = None;
+        if plan.viscous_implicit || self.overlap_solve_setup {
             // connectivity before any solve, the viscous one included
-            self.diagnostics(particles, nl, params)?;
+            let (comps, ..) = self.diagnostics(particles, nl, params)?;
+            if self.overlap_solve_setup {
+                ahead = Some((comps, particles.vol.clone(), particles.role.clone()));
+            }
         }
         let diagnostics_seconds = t.elapsed().as_secs_f64();
         let t = Instant::now();
+        let Some((comps, vol, role)) = ahead else {
+            return self.predict_body(
+                particles,
+                nl,
+                boundary,
+                params,
+                dt,
+                accel,
+                u_star,
+                t,
+                diagnostics_seconds,
+            );
+        };
+        // the Poisson matrix of this configuration assembled and factorised on one thread
+        // while the predictor runs on the others; a failure here is left to `project`'s
+        // own solve, which meets the same inputs and reports it
+        let mut solver = std::mem::take(&mut self.solver);
+        let (_, res) = rayon::join(
+            || solver.prepare(nl, &vol, &role, &comps, &params.solve),
+            || {
+                self.predict_body(
+                    particles,
+                    nl,
+                    boundary,
+                    params,
+                    dt,
+                    accel,
+                    u_star,
+                    t,
+                    diagnostics_seconds,
+                )
+            },
+        );
+        self.solver = solver;
+        // the predictor stage lasts until both are done
+        res.map(|p| Prediction {
+            seconds: t.elapsed().as_secs_f64(),
+            ..p
+        })
+    }
+
+    /// The predictor after its checks: explicit terms, then the implicit viscous solve.
+    #[allow(clippy::too_many_arguments)]
+    fn predict_body(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        dt: f64,
+        accel: Option<&[[f64; D]]>,
+        u_star: &mut Vec<[f64; D]>,
+        t: Instant,
+        diagnostics_seconds: f64,
+    ) -> Result<Prediction, Error> {
+        let plan = ProjectionPlan::new(params);
         let n = particles.len();
         let rho = params.rho;
         if boundary.has_ghosts() {
