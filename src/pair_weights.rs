@@ -56,6 +56,7 @@
 //! them when the fluid particles are the same (moving particles change them slowly).
 
 use crate::boundary::{first_ghost, Boundary, VectorKind};
+use crate::diagnostics::alias;
 use crate::error::{Error, InputError, PairWeightError};
 use crate::neighbors::NeighborList;
 use crate::particles::{Particles, Role};
@@ -280,14 +281,6 @@ fn mirror_signs<const D: usize>(role: &[Role], boundary: &dyn Boundary<D>) -> Ve
     let mut sg = vec![[1.0; D]; role.len()];
     boundary.fill_vector(role, &mut sg, VectorKind::Mirror);
     sg
-}
-
-fn alias(role: &[Role], j: usize) -> Option<usize> {
-    match role[j] {
-        Role::Fluid => Some(j),
-        Role::Ghost { source, .. } => Some(source as usize),
-        Role::Dirichlet => None,
-    }
 }
 
 impl<const D: usize> MomentWeights<D> {
