@@ -805,7 +805,7 @@ pub enum LaplacianKind {
     /// symmetric, an `O(1/h)` error on disordered particles).
     #[default]
     Gpm,
-    /// The weighted least-squares Laplacian `Δˡˢ` of [`LsLaplacian`] (exact on quadratics on
+    /// The weighted least-squares Laplacian `Δˡˢ` of [`LsOperators`] (exact on quadratics on
     /// any distribution; not symmetric). With an implicit viscous weight `θ` the predictor
     /// treats `θΔh` implicitly and `Δˡˢ − θΔh` explicitly, so a steady state satisfies the
     /// consistent `νΔˡˢu + … = 0`.

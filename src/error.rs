@@ -465,5 +465,5 @@ pub enum Error {
     PairWeights(#[from] PairWeightError),
 }
 
-/// `Result` with the crate's [`Error`].
+/// `Result` with the crate's [`Error`](enum@Error).
 pub type Result<T, E = Error> = std::result::Result<T, E>;

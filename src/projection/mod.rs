@@ -25,7 +25,7 @@
 //!
 //! **Stages.** [`ProjectionStep::predict`] and [`ProjectionStep::project`] are made of the public
 //! stages of [`stages`] ([`stages::source_field`], [`stages::divergence_into`], the Poisson solve
-//! [`crate::poisson::PoissonSolver::solve`], [`stages::correct`], [`stages::measure`]), which a
+//! [`crate::poisson::PoissonSolver::solve`], [`stages::correct`], [`stages::measure_divergence`]), which a
 //! caller can also run one by one; [`ProjectionPlan`] decides which of them run.
 //!
 //! **A one-off `project`.** With an incremental scheme `project` returns `pⁿ⁺¹ = pⁿ + φ`, and
