@@ -501,8 +501,9 @@ pub struct ProjectionStep<const D: usize> {
     /// of its configuration, on one thread while the predictor runs on the others
     /// ([`crate::poisson::PoissonSolver::prepare`]), so that [`project`](Self::project) on the same
     /// configuration finds the factor ready. Set it when predict and project see the same
-    /// particles (the [`crate::flow::Simulation`] driver does; a Lagrangian loop that moves
-    /// its particles between the two would waste the work). Default false.
+    /// particles (the [`crate::flow::Simulation`] driver does, and [`step`](Self::step) always
+    /// does it; a Lagrangian loop that moves its particles between the two would waste the
+    /// work). Default false.
     pub overlap_solve_setup: bool,
     /// The increment of the step before and that step's `Δt`: the warm start is the linear
     /// extrapolation in time of the last two increments.
@@ -571,13 +572,16 @@ impl<const D: usize> ProjectionStep<D> {
         accel: Option<&[[f64; D]]>,
     ) -> Result<StepReport, Error> {
         let mut u_star = std::mem::take(&mut self.own_u_star);
-        let r = self
-            .predict(particles, nl, boundary, params, dt, accel, &mut u_star)
-            .and_then(|pred| {
-                let mut r = self.project(particles, nl, boundary, params, dt, &u_star)?;
-                pred.add_to(&mut r);
-                Ok(r)
-            });
+        // predict and project see the same configuration here: the Poisson setup can always
+        // run beside the predictor
+        let overlap = std::mem::replace(&mut self.overlap_solve_setup, true);
+        let pred = self.predict(particles, nl, boundary, params, dt, accel, &mut u_star);
+        self.overlap_solve_setup = overlap;
+        let r = pred.and_then(|pred| {
+            let mut r = self.project(particles, nl, boundary, params, dt, &u_star)?;
+            pred.add_to(&mut r);
+            Ok(r)
+        });
         self.own_u_star = u_star;
         r
     }
