@@ -479,26 +479,30 @@ impl<const D: usize> NeighborList<D> {
                             value: n as f64,
                             reason: format!("k-d tree construction failed: {e:?}"),
                         })?;
-                    candidate_rows(n, |i, row| {
-                        let mut scratch = tree.create_scratch::<SquaredEuclidean<f64>>();
+                    let init = || tree.create_scratch::<SquaredEuclidean<f64>>();
+                    candidate_rows(n, init, |scratch, i, row| {
                         for shift in image_shifts(&xw[i], &per, radius) {
                             let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
                             tree.query(&q)
                                 .within::<SquaredEuclidean<f64>>(r2)
                                 .unsorted()
-                                .with_scratch(&mut scratch)
+                                .with_scratch(scratch)
                                 .visit(|nb| row.push(nb.item));
                         }
                     })
                 }
                 Search::CellGrid => {
                     let grid = CellGrid::new(&xw, radius);
-                    candidate_rows(n, |i, row| {
-                        for shift in image_shifts(&xw[i], &per, radius) {
-                            let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
-                            grid.within(&xw, &q, r2, |j| row.push(j));
-                        }
-                    })
+                    candidate_rows(
+                        n,
+                        || (),
+                        |_, i, row| {
+                            for shift in image_shifts(&xw[i], &per, radius) {
+                                let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
+                                grid.within(&xw, &q, r2, |j| row.push(j));
+                            }
+                        },
+                    )
                 }
             };
             indices.reserve(parts.iter().map(|p| p.1.len()).sum());
@@ -637,14 +641,7 @@ pub fn closest_pair<const D: usize>(
     if x.len() < 2 || check_finite(x).is_err() {
         return None;
     }
-    let mut lo = [f64::INFINITY; D];
-    let mut hi = [f64::NEG_INFINITY; D];
-    for p in x {
-        for k in 0..D {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
+    let (lo, hi) = bounding_box(x);
     let extent = (0..D).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
     let mut radius = (extent / (x.len() as f64).powf(1.0 / D as f64)).max(f64::MIN_POSITIVE);
     while radius.is_finite() {
@@ -725,12 +722,14 @@ fn image_shifts<const D: usize>(x: &[f64; D], per: &Periodicity<D>, radius: f64)
     shifts
 }
 
-/// The candidate rows of particles `0..n`, in parallel chunks: `query(i, row)` pushes the
-/// candidates of `i` (with repeats and `i` itself allowed), which are then sorted, deduplicated
-/// and stripped of `i`. Returns (row lengths, indices) per chunk, in order.
-fn candidate_rows<Q>(n: usize, query: Q) -> Vec<(Vec<u32>, Vec<u32>)>
+/// The candidate rows of particles `0..n`, in parallel chunks: `query(scratch, i, row)` pushes
+/// the candidates of `i` (with repeats and `i` itself allowed), which are then sorted,
+/// deduplicated and stripped of `i`; `scratch` is made once per chunk by `init`. Returns (row
+/// lengths, indices) per chunk, in order.
+fn candidate_rows<S, I, Q>(n: usize, init: I, query: Q) -> Vec<(Vec<u32>, Vec<u32>)>
 where
-    Q: Fn(usize, &mut Vec<u32>) + Sync,
+    I: Fn() -> S + Sync,
+    Q: Fn(&mut S, usize, &mut Vec<u32>) + Sync,
 {
     const CHUNK: usize = 1024;
     (0..n)
@@ -741,9 +740,10 @@ where
             let mut counts = Vec::with_capacity(end - start);
             let mut idx = Vec::with_capacity((end - start) * 32);
             let mut row: Vec<u32> = Vec::with_capacity(64);
+            let mut scratch = init();
             for i in start..end {
                 row.clear();
-                query(i, &mut row);
+                query(&mut scratch, i, &mut row);
                 row.sort_unstable();
                 row.dedup();
                 row.retain(|&j| j as usize != i);
@@ -753,6 +753,19 @@ where
             (counts, idx)
         })
         .collect()
+}
+
+/// The smallest and largest coordinate of `x` per axis (`±∞` for no points).
+fn bounding_box<const D: usize>(x: &[[f64; D]]) -> ([f64; D], [f64; D]) {
+    let mut lo = [f64::INFINITY; D];
+    let mut hi = [f64::NEG_INFINITY; D];
+    for p in x {
+        for k in 0..D {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (lo, hi)
 }
 
 /// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
@@ -769,14 +782,7 @@ impl<const D: usize> CellGrid<D> {
     /// Cells of side at least `radius` (larger when the box would need more than ~4 cells per
     /// point: a few far-away points must not blow the grid up).
     fn new(x: &[[f64; D]], radius: f64) -> Self {
-        let mut lo = [f64::INFINITY; D];
-        let mut hi = [f64::NEG_INFINITY; D];
-        for p in x {
-            for k in 0..D {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
+        let (lo, hi) = bounding_box(x);
         let mut side = radius;
         let cells = |side: f64| -> ([usize; D], f64) {
             let dims: [usize; D] =

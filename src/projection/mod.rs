@@ -791,25 +791,17 @@ impl<const D: usize> ProjectionStep<D> {
         }
         let diagnostics_seconds = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let Some((comps, vol, role)) = ahead else {
-            return self.predict_body(
-                particles,
-                nl,
-                boundary,
-                params,
-                dt,
-                accel,
-                u_star,
-                t,
-                diagnostics_seconds,
-            );
-        };
-        // the Poisson matrix of this configuration assembled and factorised on one thread
-        // while the predictor runs on the others; a failure here is left to `project`'s
-        // own solve, which meets the same inputs and reports it
+        // with `ahead`, the Poisson matrix of this configuration is assembled and factorised
+        // on one thread while the predictor runs on the others (without it that branch is
+        // empty); a failure there is left to `project`'s own solve, which meets the same
+        // inputs and reports it
         let mut solver = std::mem::take(&mut self.solver);
         let (_, res) = rayon::join(
-            || solver.prepare(nl, &vol, &role, &comps, &params.solve),
+            || {
+                if let Some((comps, vol, role)) = &ahead {
+                    let _ = solver.prepare(nl, vol, role, comps, &params.solve);
+                }
+            },
             || {
                 self.predict_body(
                     particles,
