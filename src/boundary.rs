@@ -45,9 +45,22 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// symmetry of the Poisson matrix and the adjointness of the operators rely on every image
     /// within `h` of a fluid particle existing.
     fn make_ghosts(&self, p: &mut Particles<D>, reach: f64);
+    /// [`make_ghosts`](Self::make_ghosts), with images of the Dirichlet particles too when
+    /// `band` is true (a free surface that touches a wall: its particles' images hold the band's
+    /// values, and the band moves, so its images must follow it). The default ignores `band`.
+    fn make_ghosts_with_band(&self, p: &mut Particles<D>, reach: f64, band: bool) {
+        let _ = band;
+        self.make_ghosts(p, reach)
+    }
     /// Maps positions back into the domain where the boundary allows it (periodic wrap) and
     /// reports a fluid particle that has left the domain.
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError>;
+    /// [`confine`](Self::confine), with the Dirichlet particles too when `band` is true (a
+    /// free surface, whose band moves with the fluid). The default ignores `band`.
+    fn confine_with_band(&self, p: &mut Particles<D>, band: bool) -> Result<(), InputError> {
+        let _ = band;
+        self.confine(p)
+    }
     /// The displacement that brings a point `x` back to at least `margin` inside every wall: a
     /// point at distance `s < margin` from a wall (or beyond it by less than `margin`, `s > −margin`)
     /// is reflected about the margin plane, to `2 margin − s` (zero when it already is inside
@@ -139,6 +152,16 @@ impl<const D: usize> Walls<D> {
             walls,
             periodic: Periodicity::none(),
         }
+    }
+
+    /// An open tank: stationary walls on every face of the box `[lo, hi]` except the top
+    /// `x_{D−1} = hi[D−1]` (free-surface scenes: the water's top is a free surface, and nothing
+    /// stops a splash from rising above `hi`).
+    pub fn tank(lo: [f64; D], hi: [f64; D]) -> Self {
+        let mut w = Self::closed_box(lo, hi);
+        w.walls
+            .retain(|wall| !(wall.axis == D - 1 && wall.inward < 0.0));
+        w
     }
 
     /// A channel: stationary walls at `x_{D−1} = lo[D−1]` and `x_{D−1} = hi[D−1]` (for `D = 2`,
@@ -321,12 +344,21 @@ impl<const D: usize> Boundary<D> for Walls<D> {
     }
 
     fn make_ghosts(&self, p: &mut Particles<D>, reach: f64) {
+        self.make_ghosts_with_band(p, reach, false)
+    }
+
+    fn make_ghosts_with_band(&self, p: &mut Particles<D>, reach: f64, band: bool) {
         let first = first_ghost(&p.role);
         p.truncate(first);
         let nw = self.walls.len();
         assert!(nw <= 8, "at most 8 walls");
         for i in 0..first {
-            if !p.role[i].is_fluid() {
+            let mirrored = match p.role[i] {
+                Role::Fluid => true,
+                Role::Dirichlet => band,
+                Role::Ghost { .. } => false,
+            };
+            if !mirrored {
                 continue;
             }
             let x = p.x[i];
@@ -424,9 +456,13 @@ impl<const D: usize> Boundary<D> for Walls<D> {
     }
 
     fn confine(&self, p: &mut Particles<D>) -> Result<(), InputError> {
+        self.confine_with_band(p, false)
+    }
+
+    fn confine_with_band(&self, p: &mut Particles<D>, band: bool) -> Result<(), InputError> {
         let per = self.periodic;
         for i in 0..p.len() {
-            if !p.role[i].is_fluid() {
+            if !(p.role[i].is_fluid() || band && p.role[i] == Role::Dirichlet) {
                 continue;
             }
             if per.any() {

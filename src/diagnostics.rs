@@ -147,12 +147,16 @@ impl Components {
 }
 
 /// The fluid particle a particle's value is taken from in the Poisson problem: itself for
-/// fluid, the source for a ghost, none for Dirichlet.
+/// fluid, the source for a ghost of a fluid particle, none for Dirichlet particles and their
+/// ghosts (a free surface that touches a wall has images too: they hold the band's zero).
 #[inline]
 pub(crate) fn alias(role: &[Role], j: usize) -> Option<usize> {
     match role[j] {
         Role::Fluid => Some(j),
-        Role::Ghost { source, .. } => Some(source as usize),
+        Role::Ghost { source, .. } => {
+            let s = source as usize;
+            role[s].is_fluid().then_some(s)
+        }
         Role::Dirichlet => None,
     }
 }

@@ -32,6 +32,13 @@ impl Role {
     pub fn is_fluid(&self) -> bool {
         matches!(self, Role::Fluid)
     }
+
+    /// True for a particle of `Ω_H` — [`Role::Fluid`] or [`Role::Dirichlet`] — rather than a
+    /// ghost image: what a ghost may mirror.
+    #[inline]
+    pub fn is_real(&self) -> bool {
+        !matches!(self, Role::Ghost { .. })
+    }
 }
 
 /// The particle state of a run.
@@ -105,6 +112,18 @@ impl<const D: usize> Particles<D> {
             .sqrt()
     }
 
+    /// Largest speed `max |u_i|` over the fluid and band particles (0 without any): the speed
+    /// the time step must resolve when the band moves (a free surface).
+    pub fn max_speed(&self) -> f64 {
+        self.u
+            .iter()
+            .zip(&self.role)
+            .filter(|(_, r)| r.is_real())
+            .map(|(u, _)| u.iter().map(|v| v * v).sum::<f64>())
+            .fold(0.0f64, f64::max)
+            .sqrt()
+    }
+
     /// Checks that the arrays agree in length, that positions, velocities, pressures and volumes
     /// are finite, that volumes are positive and that every ghost mirrors a fluid particle.
     /// The error names the first offending particle.
@@ -151,7 +170,7 @@ impl<const D: usize> Particles<D> {
             }
             if let Role::Ghost { source, .. } = self.role[i] {
                 let s = source as usize;
-                if s >= n || !self.role[s].is_fluid() {
+                if s >= n || !self.role[s].is_real() {
                     return Err(InputError::BadGhostSource {
                         particle: i,
                         source_particle: s,

@@ -268,7 +268,8 @@ pub fn time_step<const D: usize>(
     l: &TimeStepLimits,
 ) -> (f64, DtLimit) {
     let h = nl.h();
-    let umax = p.max_fluid_speed();
+    // fluid and band: a free surface's particles are often the fastest
+    let umax = p.max_speed();
     let mut dt = l.dt_max.unwrap_or(f64::INFINITY);
     let mut which = DtLimit::Max;
     let cfl = l.cfl * h / umax.max(l.u_ref);

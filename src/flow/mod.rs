@@ -21,6 +21,7 @@
 //! convective term in [`convection`], shifting in [`shifting`].
 
 pub mod convection;
+pub mod free_surface;
 pub mod shifting;
 
 use crate::boundary::{Boundary, VectorKind};
@@ -28,13 +29,14 @@ use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
-use crate::particles::Particles;
+use crate::particles::{Particles, Role};
 use crate::projection::{ProjectionParams, ProjectionStep, Scheme, StepReport};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 pub use crate::time::{DtLimit, StabilityGuard, TimeStepLimits};
 pub use convection::{Convection, Integrator};
+pub use free_surface::{FreeSurface, SurfaceCount};
 pub use shifting::Shifting;
 
 /// Frame of the particles.
@@ -140,6 +142,8 @@ pub enum Stage {
     Shifting,
     /// A Dirichlet band (free surface / open boundary) anchors the pressure.
     DirichletBand,
+    /// Free-surface detection: the band is chosen again every step ([`free_surface`]).
+    FreeSurface,
 }
 
 /// What a scene has, and so which stages run (MISSION §4: "a scene skips every stage it does not
@@ -218,6 +222,8 @@ pub struct FlowReport {
     /// Fluid particles the wall margin moved back this step (Lagrangian frame; see
     /// [`WALL_MARGIN`]).
     pub wall_pushes: usize,
+    /// Free surfaces: the band the detection chose for this step (`None` without one).
+    pub surface: Option<SurfaceCount>,
 }
 
 /// Moving particles are kept at least this fraction of the spacing `Δx` inside the walls: a
@@ -268,6 +274,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     prev_energy: Option<f64>,
     /// Moment pair-weight state: parameters, warm-start multipliers, last report.
     pub pair_weights: crate::pair_weights::MomentWeights<D>,
+    /// Free-surface detection and the full-lattice number density `n₀` it compares with.
+    free_surface: Option<(FreeSurface, f64)>,
 }
 
 impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
@@ -332,6 +340,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             convection: Convection::new(),
             prev_energy: None,
             pair_weights: Default::default(),
+            free_surface: None,
         };
         // predict and project act on the same configuration in every step of the driver
         sim.projection.overlap_solve_setup = true;
@@ -346,6 +355,40 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
     /// The stages this simulation runs.
     pub fn plan(&self) -> &StagePlan {
         &self.plan
+    }
+
+    /// Makes the water's boundary a free surface ([`free_surface`]): from now on every step
+    /// first chooses the surface particles (the Dirichlet band, `p = 0`) by their number
+    /// density, the band moves and is corrected with the fluid
+    /// ([`ProjectionParams::free_surface`]), walls mirror the band too, and a fluid cluster
+    /// without a path to the band is handled by `params.projection.disconnected`. The first
+    /// detection runs here. Fails on a bad threshold.
+    pub fn with_free_surface(mut self, fs: FreeSurface) -> Result<Self, Error> {
+        fs.validate()?;
+        let n0 = free_surface::lattice_number_density(self.nl.kernel(), self.params.dx);
+        self.free_surface = Some((fs, n0));
+        self.params.projection.free_surface = true;
+        if !self.plan.has(Stage::DirichletBand) {
+            let i = self.plan.stages.len().min(3);
+            self.plan.stages.insert(i, Stage::DirichletBand);
+        }
+        self.plan.stages.push(Stage::FreeSurface);
+        // images of every real particle near a wall, whatever its role will be
+        if self.plan.has(Stage::Ghosts) {
+            let c = self.nl.config();
+            self.boundary
+                .make_ghosts_with_band(&mut self.particles, c.h + c.skin, true);
+            self.nl.invalidate();
+            self.nl.update(&self.particles.x)?;
+            self.update_volumes()?;
+        }
+        free_surface::detect(&mut self.particles, &self.nl, n0, fs.threshold, true);
+        Ok(self)
+    }
+
+    /// The free-surface detection, when the run has one.
+    pub fn free_surface(&self) -> Option<FreeSurface> {
+        self.free_surface.map(|(fs, _)| fs)
     }
 
     fn update_volumes(&mut self) -> Result<(), Error> {
@@ -400,7 +443,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             if ghosts {
                 let c = self.nl.config();
                 let reach = c.h + c.skin;
-                self.boundary.make_ghosts(&mut self.particles, reach);
+                let band = self.free_surface.is_some();
+                self.boundary
+                    .make_ghosts_with_band(&mut self.particles, reach, band);
             }
             self.nl.invalidate();
             rebuilt = true;
@@ -544,6 +589,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             });
             let res = shifting::advance_particles(
                 sh.as_ref(),
+                self.free_surface.is_some(),
                 self.params.dx,
                 dt,
                 WALL_MARGIN * self.params.dx,
@@ -565,6 +611,24 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             // ũⁿ, for the material acceleration after the projection
             self.material_accel.clone_from(&self.particles.u);
         }
+        // the free surface of the configuration the projection acts on
+        let surface = match self.free_surface {
+            Some((fs, n0)) => {
+                let t = Instant::now();
+                let offset = fs.surface_offset * self.params.dx;
+                let p = &mut self.particles;
+                let count = free_surface::detect(p, &self.nl, n0, fs.threshold, offset == 0.0);
+                if offset > 0.0 {
+                    let mut g = Vec::new();
+                    self.pressure_gradient_into(&mut g);
+                    let rho = self.params.projection.rho;
+                    free_surface::set_band_pressure(&mut self.particles, &self.nl, &g, rho, offset);
+                }
+                neighbors_seconds += t.elapsed().as_secs_f64();
+                Some(count)
+            }
+            None => None,
+        };
         // the predictor's right side computed here (convection, the trapezoidal pressure term)
         // is counted in the predictor stage's time
         let t_rhs = Instant::now();
@@ -646,8 +710,10 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         if lagrangian {
             let p = &self.particles;
+            let band = self.free_surface.is_some();
             for (i, a) in self.material_accel.iter_mut().enumerate() {
-                *a = if p.role[i].is_fluid() {
+                let moves = p.role[i].is_fluid() || band && p.role[i] == Role::Dirichlet;
+                *a = if moves {
                     std::array::from_fn(|k| (p.u[i][k] - a[k]) / dt)
                 } else {
                     [0.0; D]
@@ -684,6 +750,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             dt_ratio,
             energy_growth,
             wall_pushes: moved.wall_pushes,
+            surface,
         })
     }
 }

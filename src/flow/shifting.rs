@@ -171,9 +171,13 @@ pub(crate) struct Moved {
 /// Fickian part when `sh.correct`). Then confines the particles (periodic wrap, a particle still
 /// outside is an error) and returns the largest shift and the number of wall pushes. `dx` is
 /// the particle spacing; `u` covers every particle (its ghost entries are refilled here).
+/// With `band_moves` (a free surface) the Dirichlet particles move too, and their Fickian shift
+/// is only its part tangential to the surface (normal to `∇C`): a surface particle shifted
+/// along the normal would change the shape of the surface.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     sh: Option<&Shifting>,
+    band_moves: bool,
     dx: f64,
     dt: f64,
     margin: f64,
@@ -187,13 +191,16 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
 ) -> Result<Moved, Error> {
     let n = p.len();
     assert_eq!(u.len(), n, "the advection velocity covers every particle");
+    let moves = |r: &crate::particles::Role| {
+        r.is_fluid() || band_moves && *r == crate::particles::Role::Dirichlet
+    };
     if boundary.has_ghosts() {
         boundary.fill_vector(&p.role, u, crate::boundary::VectorKind::Velocity);
     }
     let kernel = *nl.kernel();
     let h = nl.h();
     let umax = (0..n)
-        .filter(|&i| p.role[i].is_fluid())
+        .filter(|&i| moves(&p.role[i]))
         .map(|i| norm2(&u[i]).sqrt())
         .fold(0.0, f64::max);
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
@@ -206,7 +213,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         s.shift.par_iter_mut().enumerate().for_each(|(i, s)| {
             *s = [0.0; D];
             let Some(sh) = sh else { return };
-            if !p.role[i].is_fluid() {
+            if !moves(&p.role[i]) {
                 return;
             }
             let mut gc = [0.0; D];
@@ -242,6 +249,16 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
                     }
                 }
             }
+            if p.role[i] == crate::particles::Role::Dirichlet {
+                // tangential only: remove the part along the surface normal ∇C/|∇C|
+                let g2 = norm2(&gc);
+                if g2 > 0.0 {
+                    let dn = (0..D).map(|a| d[a] * gc[a]).sum::<f64>() / g2;
+                    for a in 0..D {
+                        d[a] -= dn * gc[a];
+                    }
+                }
+            }
             let m = norm2(&d).sqrt();
             let lim = sh.max_fraction * dx;
             if m > lim {
@@ -261,7 +278,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     let mut wall_pushes = 0;
     for i in 0..n {
         s.wall[i] = [0.0; D];
-        if !p.role[i].is_fluid() {
+        if !moves(&p.role[i]) {
             continue;
         }
         let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + advect(u, i, a) + s.shift[i][a]);
@@ -299,7 +316,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         }
     }
     for i in 0..n {
-        if !p.role[i].is_fluid() {
+        if !moves(&p.role[i]) {
             continue;
         }
         // the velocity follows the shift by its Taylor expansion; the wall part is a stop, not
@@ -342,7 +359,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             }
         }
     }
-    boundary.confine(p)?;
+    boundary.confine_with_band(p, band_moves)?;
     Ok(Moved {
         max_shift,
         wall_pushes,

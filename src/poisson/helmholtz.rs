@@ -68,10 +68,15 @@ impl HelmholtzSolver {
         self.sigma.resize(n, 1.0);
         let mut consts: Vec<[f64; D]> = vec![[0.0; D]; n];
         for j in 0..n {
-            if let Role::Ghost { .. } = role[j] {
+            if let Role::Ghost { source, .. } = role[j] {
                 let (s, b) = ghost_rule(j);
                 self.sigma[j] = s;
                 consts[j] = b;
+                if role[source as usize] == Role::Dirichlet {
+                    // the image of a band particle: a given value, σ u_src + b
+                    let us = u[source as usize];
+                    consts[j] = std::array::from_fn(|d| s * us[d] + b[d]);
+                }
             } else {
                 self.sigma[j] = 1.0;
                 if role[j] == Role::Dirichlet {

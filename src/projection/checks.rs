@@ -85,7 +85,7 @@ pub fn check_roles(role: &[Role]) -> Result<(), InputError> {
         match *r {
             Role::Ghost { source, .. } => {
                 let s = source as usize;
-                if s >= first || !role[s].is_fluid() {
+                if s >= first || !role[s].is_real() {
                     return Err(InputError::BadGhostSource {
                         particle: i,
                         source_particle: s,

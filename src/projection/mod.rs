@@ -215,6 +215,14 @@ pub struct ProjectionParams<const D: usize> {
     /// 0.3 Δx jitter). The sweep damps them; on smooth pressures it changes `p` by
     /// `O(β Δx² ∇²p)`, which the next projection restores.
     pub pressure_smoothing: f64,
+    /// The Dirichlet band is a free surface (default false: the band's velocity is given
+    /// data). Its particles are then predicted like fluid ones (body force and pressure terms;
+    /// no viscous term: the surface is stress-free) and their velocity after the correction is
+    /// the water's below them ([`stages::extend_to_band`]), while their pressure is held at the
+    /// band's value (`φ = 0` there; zero, or what the driver sets:
+    /// [`crate::flow::free_surface::set_band_pressure`]): the paper's Dirichlet problem on the
+    /// fluid, and a band that moves with it.
+    pub free_surface: bool,
 }
 
 impl<const D: usize> ProjectionParams<D> {
@@ -236,6 +244,7 @@ impl<const D: usize> ProjectionParams<D> {
             source: SourceKind::SumForm,
             laplacian: LaplacianKind::Gpm,
             pressure_smoothing: 0.0,
+            free_surface: false,
         }
     }
 
@@ -883,6 +892,16 @@ impl<const D: usize> ProjectionStep<D> {
                 }
             }
         }
+        if params.free_surface {
+            // a free surface is stress-free: its particles get no viscous term (their one-sided
+            // Laplacian, explicit while the fluid's is implicit, is what would make them
+            // unstable)
+            for (a, r) in acc.iter_mut().zip(particles.role.iter()) {
+                if *r == crate::particles::Role::Dirichlet {
+                    *a = [0.0; D];
+                }
+            }
+        }
         if plan.pressure_gradient {
             let gp = &mut self.work_vec2;
             gp.resize(n, [0.0; D]);
@@ -898,8 +917,9 @@ impl<const D: usize> ProjectionStep<D> {
         }
         let g = params.gravity;
         let has_g = plan.body_force;
+        let band_moves = params.free_surface;
         for i in 0..n {
-            if !role[i].is_fluid() {
+            if !(role[i].is_fluid() || band_moves && role[i] == crate::particles::Role::Dirichlet) {
                 continue;
             }
             let a = &acc[i];
@@ -937,6 +957,13 @@ impl<const D: usize> ProjectionStep<D> {
             self.work_vec2 = r;
             self.viscous_info = info?;
             viscous = Some(self.viscous_info);
+        }
+        if params.free_surface {
+            // the band's u* is the water's below it (see stages::extend_to_band)
+            if boundary.has_ghosts() {
+                boundary.fill_vector(&particles.role, u_star, VectorKind::Velocity);
+            }
+            stages::extend_to_band(nl, &particles.role, u_star);
         }
         Ok(Prediction {
             seconds: t.elapsed().as_secs_f64(),
@@ -1161,6 +1188,12 @@ impl<const D: usize> ProjectionStep<D> {
         if ghosts {
             boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
             boundary.fill_scalar(role, &mut self.p_new);
+        }
+        if params.free_surface {
+            stages::extend_to_band(nl, role, &mut self.u_new);
+            if ghosts {
+                boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
+            }
         }
         report.timings.correction = t.elapsed().as_secs_f64() - diag_extra;
 

@@ -28,9 +28,11 @@ use rayon::prelude::*;
 
 /// The source field `f_i = scale · v_i` (the projection uses `scale = −ρ/Δt`, `v = u*`) on the
 /// fluid and the ghosts, and on the Dirichlet band `f_i = 0` (the paper's `f̂`, which the
-/// adjointness of the sum-form pair needs) or, with the least-squares divergence (`kind`), the
-/// band's own `scale · v_i`: a consistent divergence of the field the particles carry (zeroing
-/// the band would make a divergence-free field look divergent within `h` of it); when the boundary has ghosts and
+/// adjointness of the sum-form pair needs) or, with a consistent divergence (`kind`
+/// renormalised or least-squares), the band's own `scale · v_i`: a consistent divergence of the
+/// field the particles carry (zeroing the band would make a divergence-free field look
+/// divergent within `h` of it — at a free surface, the water flowing toward its moving surface
+/// would look compressed); when the boundary has ghosts and
 /// `ghost_rule` is [`VectorKind::Mirror`], the ghosts are refilled by the mirror rule (else they
 /// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
 pub fn source_field<const D: usize>(
@@ -44,7 +46,7 @@ pub fn source_field<const D: usize>(
 ) {
     let n = role.len();
     f.resize(n, [0.0; D]);
-    let keep_band = kind == SourceKind::LeastSquares;
+    let keep_band = matches!(kind, SourceKind::LeastSquares | SourceKind::Renormalised);
     for i in 0..n {
         f[i] = if !keep_band && matches!(role[i], Role::Dirichlet) {
             [0.0; D]
@@ -133,6 +135,13 @@ pub fn correct<const D: usize>(
     let rot_nu = params.nu * params.viscous_theta;
     let s = dt / rho;
     for i in 0..role.len() {
+        if params.free_surface && role[i] == Role::Dirichlet {
+            // a free-surface particle: corrected like the fluid; its pressure is the band's
+            // value (φ = 0 there), which the driver sets
+            let (us, gp) = (u_star[i], gphi[i]);
+            u[i] = std::array::from_fn(|k| us[k] - s * gp[k]);
+            continue;
+        }
         if !role[i].is_fluid() {
             continue;
         }
@@ -151,6 +160,37 @@ pub fn correct<const D: usize>(
                 p[i] + phi[i] - rot
             }
         };
+    }
+}
+
+/// A free surface's velocity: each band particle takes the Shepard mean `Σ w_ij u_j / Σ w_ij`
+/// of the corrected velocities of its fluid neighbours within `h` (wall images of fluid
+/// particles included, with their no-slip values); a band particle without one — a splash —
+/// keeps the velocity it has (its ballistic prediction). The band's own correction
+/// `u* − (Δt/ρ)∇φ` is an integrator that nothing in the Poisson problem constrains (the band
+/// carries no divergence row): measured on a tank at rest, its velocity grows without bound;
+/// taken from the fluid, the surface moves with the water below it.
+pub fn extend_to_band<const D: usize>(nl: &NeighborList<D>, role: &[Role], u: &mut [[f64; D]]) {
+    let ext: Vec<(usize, [f64; D])> = (0..role.len())
+        .into_par_iter()
+        .filter(|&i| role[i] == Role::Dirichlet)
+        .filter_map(|i| {
+            let (mut sw, mut su) = (0.0, [0.0; D]);
+            for k in nl.row(i) {
+                let j = nl.indices()[k] as usize;
+                let w = nl.w()[k];
+                if w > 0.0 && crate::diagnostics::alias(role, j).is_some() {
+                    sw += w;
+                    for a in 0..D {
+                        su[a] += w * u[j][a];
+                    }
+                }
+            }
+            (sw > 0.0).then(|| (i, su.map(|v| v / sw)))
+        })
+        .collect();
+    for (i, v) in ext {
+        u[i] = v;
     }
 }
 

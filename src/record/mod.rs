@@ -237,6 +237,9 @@ pub struct StepContext {
     /// Kinetic energy after the step over the energy before it (`None`: first step, from rest,
     /// or not known to the loop).
     pub energy_growth: Option<f64>,
+    /// Free surfaces: the surface (band) and splash particles of the step (`None` without a
+    /// free surface).
+    pub surface: Option<crate::flow::SurfaceCount>,
 }
 
 impl StepContext {
@@ -263,6 +266,7 @@ impl StepContext {
             neighbors_seconds: report.neighbors_seconds,
             advect_seconds: report.advect_seconds,
             energy_growth: report.energy_growth,
+            surface: report.surface,
         }
     }
 }

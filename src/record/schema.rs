@@ -414,6 +414,13 @@ pub struct StepDiagnostics {
     pub max_shift: f64,
     /// Seconds per stage.
     pub timings: TimingDiagnostics,
+    /// Free surfaces: particles of the band (surface particles) this step; `null` without a
+    /// free surface (and in older logs).
+    #[serde(default)]
+    pub surface_particles: Option<u64>,
+    /// Free surfaces: band particles without a fluid neighbour (splashes); `null` without one.
+    #[serde(default)]
+    pub splash_particles: Option<u64>,
 }
 
 impl StepDiagnostics {
@@ -496,6 +503,8 @@ impl StepDiagnostics {
                 total,
                 record: record_seconds,
             },
+            surface_particles: ctx.surface.map(|s| s.surface as u64),
+            splash_particles: ctx.surface.map(|s| s.splash as u64),
         }
     }
 }
@@ -1277,6 +1286,10 @@ pub struct ProjectionSpec {
     /// Weight of the pressure smoothing sweep (files before it was recorded: 0).
     #[serde(default)]
     pub pressure_smoothing: f64,
+    /// The Dirichlet band is a free surface that moves with the fluid (files before it was
+    /// recorded: false).
+    #[serde(default)]
+    pub free_surface: bool,
 }
 
 /// [`VectorKind`] in serialisable form.
@@ -1326,6 +1339,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             source,
             laplacian,
             pressure_smoothing,
+            free_surface,
         } = *p;
         ProjectionSpec {
             rho,
@@ -1342,6 +1356,7 @@ impl<const D: usize> From<&ProjectionParams<D>> for ProjectionSpec {
             source,
             laplacian,
             pressure_smoothing,
+            free_surface,
         }
     }
 }
@@ -1364,6 +1379,7 @@ impl ProjectionSpec {
             source: self.source,
             laplacian: self.laplacian,
             pressure_smoothing: self.pressure_smoothing,
+            free_surface: self.free_surface,
         })
     }
 }
