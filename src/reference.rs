@@ -106,3 +106,53 @@ pub fn rms_max(reference: &[(f64, f64)], simulated: &[f64]) -> (f64, f64) {
     }
     ((s2 / k.max(1) as f64).sqrt(), m)
 }
+
+const MM_FRONT: &str = include_str!("../data/martin_moyce1952_surge_front.csv");
+const MM_HEIGHT: &str = include_str!("../data/martin_moyce1952_column_height.csv");
+
+/// Martin & Moyce (1952)'s collapse of a water column of width `a` and height `2a`
+/// (`n² = 2`; Phil. Trans. R. Soc. A 244, 312–324, Tables 2 and 6; see `data/SOURCES.md`):
+/// the surge front `Z = z/a` against `T = t√(2g/a)`, and the residual column height
+/// `H = η/(2a)` against `τ = t√(g/a)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DamBreakTable {
+    /// `(T, Z)`.
+    pub front: Vec<(f64, f64)>,
+    /// `(τ, H)`.
+    pub height: Vec<(f64, f64)>,
+}
+
+/// Martin & Moyce's dam-break measurements.
+pub fn martin_moyce() -> DamBreakTable {
+    DamBreakTable {
+        front: parse_two_columns(MM_FRONT).expect("embedded Martin & Moyce front table"),
+        height: parse_two_columns(MM_HEIGHT).expect("embedded Martin & Moyce height table"),
+    }
+}
+
+/// Linear interpolation of the sampled curve `(t, y)` (ascending `t`) at `t`; `None` outside it.
+pub fn interpolate(curve: &[(f64, f64)], t: f64) -> Option<f64> {
+    let k = curve.iter().position(|&(s, _)| s >= t)?;
+    if k == 0 {
+        return (curve[0].0 == t).then_some(curve[0].1);
+    }
+    let (t0, y0) = curve[k - 1];
+    let (t1, y1) = curve[k];
+    Some(y0 + (y1 - y0) * (t - t0) / (t1 - t0))
+}
+
+/// Mean of `|y_sim(T) − y_exp| / y_exp` over the measured points with `lo ≤ T ≤ hi` that the
+/// simulated curve covers, and how many there were (`None` without any).
+pub fn mean_relative_deviation(
+    sim: &[(f64, f64)],
+    measured: &[(f64, f64)],
+    lo: f64,
+    hi: f64,
+) -> Option<(f64, usize)> {
+    let d: Vec<f64> = measured
+        .iter()
+        .filter(|&&(t, _)| t >= lo && t <= hi)
+        .filter_map(|&(t, y)| interpolate(sim, t).map(|s| ((s - y) / y).abs()))
+        .collect();
+    (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64, d.len()))
+}

@@ -452,7 +452,19 @@ fn scene_configuration_keys_are_the_serialised_keys() {
     }
     check::<cavity::Cavity>();
     check::<taylor_green::TaylorGreen>();
-    assert_eq!(gpm::scene::SCENES, ["cavity", "taylor_green", "channel"]);
+    check::<gpm::scene::channel::Channel>();
+    check::<gpm::scene::hydrostatic::Hydrostatic>();
+    check::<gpm::scene::dam_break::DamBreak>();
+    assert_eq!(
+        gpm::scene::SCENES,
+        [
+            "cavity",
+            "taylor_green",
+            "channel",
+            "hydrostatic",
+            "dam_break"
+        ]
+    );
 }
 
 #[test]
@@ -509,7 +521,11 @@ fn scenes_are_found_by_name() {
         gpm::scene::visit_scene("Taylor-Green", Name).unwrap(),
         ("taylor_green", 2)
     );
-    match gpm::scene::visit_scene("dam-break", Name) {
+    assert_eq!(
+        gpm::scene::visit_scene("dam-break", Name).unwrap(),
+        ("dam_break", 2)
+    );
+    match gpm::scene::visit_scene("sloshing", Name) {
         Err(gpm::error::InputError::Config { key, reason }) => {
             assert_eq!(key, "scene");
             assert!(reason.contains("cavity, taylor_green"), "{reason}");

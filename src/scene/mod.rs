@@ -17,6 +17,8 @@
 
 pub mod cavity;
 pub mod channel;
+pub mod dam_break;
+pub mod hydrostatic;
 pub mod manufactured;
 pub mod taylor_green;
 
@@ -1185,4 +1187,6 @@ registry! {
     2 => cavity::Cavity,
     2 => taylor_green::TaylorGreen,
     2 => channel::Channel,
+    2 => hydrostatic::Hydrostatic,
+    2 => dam_break::DamBreak,
 }
