@@ -23,15 +23,18 @@ use std::path::PathBuf;
 #[derive(Parser, Debug)]
 #[command(about = "Dam break (Martin & Moyce 1952): surge front and column height")]
 struct Args {
-    /// Particles across the column width.
-    #[arg(long, default_value_t = 40)]
-    n: usize,
-    /// End time T = t √(2g/a).
-    #[arg(long, default_value_t = gpm::scene::dam_break::T_END)]
-    t_end: f64,
+    /// Particles across the column width (default 40).
+    #[arg(long)]
+    n: Option<usize>,
+    /// End time T = t √(2g/a) (default 3).
+    #[arg(long)]
+    t_end: Option<f64>,
     /// Reynolds number √(g a³)/ν.
     #[arg(long)]
     re: Option<f64>,
+    /// A configuration file (JSON: any of the scene's keys; the flags above override it).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Output directory.
     #[arg(long, default_value = "results/dam_break")]
     out: PathBuf,
@@ -39,9 +42,14 @@ struct Args {
 
 fn main() -> Result<()> {
     let a = Args::parse();
-    let cfg = DamBreakConfig::default().with(|c| {
-        c.n = a.n;
-        c.t_end = a.t_end / (2.0 * c.scene.gravity).sqrt();
+    let base: DamBreakConfig = common::load(a.config.as_deref())?;
+    let cfg = base.with(|c| {
+        if let Some(n) = a.n {
+            c.n = n;
+        }
+        if let Some(t) = a.t_end {
+            c.t_end = t / (2.0 * c.scene.gravity).sqrt();
+        }
         if let Some(re) = a.re {
             c.re = re;
         }

@@ -21,12 +21,15 @@ use std::path::PathBuf;
 #[derive(Parser, Debug)]
 #[command(about = "A tank at rest with a free surface: hydrostatic pressure, drift, energy")]
 struct Args {
-    /// Particles across the tank.
-    #[arg(long, default_value_t = 40)]
-    n: usize,
-    /// End time in units of √(H/g).
-    #[arg(long, default_value_t = 5.0)]
-    t_end: f64,
+    /// Particles across the tank (default 40).
+    #[arg(long)]
+    n: Option<usize>,
+    /// End time in units of √(H/g) (default 5).
+    #[arg(long)]
+    t_end: Option<f64>,
+    /// A configuration file (JSON: any of the scene's keys; the flags above override it).
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// Output directory.
     #[arg(long, default_value = "results/hydrostatic")]
     out: PathBuf,
@@ -34,9 +37,14 @@ struct Args {
 
 fn main() -> Result<()> {
     let a = Args::parse();
-    let cfg = HydrostaticConfig::default().with(|c| {
-        c.n = a.n;
-        c.t_end = a.t_end;
+    let base: HydrostaticConfig = common::load(a.config.as_deref())?;
+    let cfg = base.with(|c| {
+        if let Some(n) = a.n {
+            c.n = n;
+        }
+        if let Some(t) = a.t_end {
+            c.t_end = t;
+        }
     });
     common::run_into(&cfg, &a.out, false)
 }

@@ -7,6 +7,20 @@ use gpm::scene::{run_recorded, Scene, SceneConfig};
 use std::ops::ControlFlow;
 use std::path::Path;
 
+/// The configuration in `path` (a JSON object of the scene's keys, or a recording's
+/// `/config`), the scene's defaults without one.
+pub fn load<S: gpm::scene::SceneParams>(path: Option<&Path>) -> Result<SceneConfig<S>> {
+    match path {
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            gpm::scene::scene_config_from_json::<S>(&text)
+                .with_context(|| format!("reading the configuration {}", p.display()))
+        }
+        None => Ok(Default::default()),
+    }
+}
+
 /// Runs `cfg` recording every step (`full`: with particle snapshots) into `out/run.mcap` and
 /// writes the scene's files into `out`; prints the summary.
 pub fn run_into<S: Scene<2>>(cfg: &SceneConfig<S>, out: &Path, full: bool) -> Result<()> {
