@@ -24,7 +24,8 @@ use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::flow::{
-    FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule,
+    ConvectionForm, FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation,
+    TimeStepLimits, VolumeRule,
 };
 use crate::kernel::Weight;
 use crate::neighbors::NeighborConfig;
@@ -76,6 +77,10 @@ pub struct FlowConfig {
     pub motion: Motion,
     /// Integrator of the explicit terms.
     pub integrator: Integrator,
+    /// Discretisation of the convective term (Eulerian frame): `"central"` (default),
+    /// `"skew_symmetric"`, `"upwind"`, `"muscl"` or `"muscl_van_leer"` ([`ConvectionForm`],
+    /// formulas in [`crate::flow::convection`]).
+    pub convection: ConvectionForm,
     /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
     pub viscous_theta: f64,
     /// Particle shifting (Lagrangian runs only).
@@ -111,6 +116,7 @@ impl Default for FlowConfig {
             gradient: GradientKind::Difference,
             motion: Motion::Eulerian,
             integrator: Integrator::Ab2,
+            convection: ConvectionForm::Central,
             viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
@@ -251,6 +257,7 @@ impl FlowConfig {
             limits,
             motion: self.motion,
             integrator: self.integrator,
+            convection: self.convection,
             shifting: if self.motion == Motion::Lagrangian {
                 self.shifting
             } else {
@@ -352,6 +359,7 @@ config_fields!(FlowConfig {
     gradient,
     motion,
     integrator,
+    convection,
     viscous_theta,
     shifting,
     volumes,
