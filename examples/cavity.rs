@@ -58,7 +58,7 @@ struct Args {
     integrator: Integrator,
     /// Convective term (Eulerian frame): skew-symmetric, central, upwind, muscl or
     /// muscl-van-leer.
-    #[arg(long, default_value = "central")]
+    #[arg(long, default_value = "skew-symmetric")]
     convection: gpm::flow::ConvectionForm,
     /// Implicit weight of the viscous term (0.5 Crank–Nicolson, 0 explicit).
     #[arg(long, default_value_t = 0.5)]

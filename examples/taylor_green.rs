@@ -63,7 +63,7 @@ struct Args {
     integrator: Integrator,
     /// Convective term (Eulerian frame): skew-symmetric, central, upwind, muscl or
     /// muscl-van-leer.
-    #[arg(long, default_value = "central")]
+    #[arg(long, default_value = "skew-symmetric")]
     convection: gpm::flow::ConvectionForm,
     /// Implicit viscous weight θ.
     #[arg(long, default_value_t = 0.5)]

@@ -99,14 +99,14 @@ fn ghost_gradients_are_those_of_the_no_slip_images() {
         _ => unreachable!(),
     };
     let mut pairs = 0;
-    for i in first..p.len() {
+    for (i, gi) in g.iter().enumerate().skip(first) {
         for j in first..p.len() {
             if i == j || mask(i) != mask(j) {
                 continue;
             }
             let dxij = [p.x[j][0] - p.x[i][0], p.x[j][1] - p.x[i][1]];
-            for a in 0..2 {
-                let predicted = g[i][a][0] * dxij[0] + g[i][a][1] * dxij[1];
+            for (a, row) in gi.iter().enumerate() {
+                let predicted = row[0] * dxij[0] + row[1] * dxij[1];
                 let actual = p.u[j][a] - p.u[i][a];
                 assert!(
                     (predicted - actual).abs() < 1e-12,

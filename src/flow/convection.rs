@@ -14,7 +14,7 @@
 //! `U Δx/ν ≫ 2` the Re 1000 cavity at n = 48 settles on a spurious, over-energetic state (10 %
 //! RMS off the reference at any `Δt`) or blows up at the top-right lid corner at the CFL limit.
 //!
-//! The **skew-symmetric** form ([`ConvectionForm::SkewSymmetric`]) advects with
+//! The **skew-symmetric** form ([`ConvectionForm::SkewSymmetric`], the default) advects with
 //! the pair mean `ū_ij = ½(u_i + u_j)`:
 //!
 //! `N_i = Σ_j c_ij (u_j − u_i)`,  `c_ij = d ω_j w_h(r_ij)/r_ij² (ū_ij·x_ij)`.
@@ -84,11 +84,11 @@ impl std::str::FromStr for Integrator {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ConvectionForm {
-    /// `N_i = G_i u_i` (no dissipation; the form before issue 15).
-    #[default]
+    /// `N_i = G_i u_i` (no dissipation; the default before issue 15).
     Central,
     /// `N_i = Σ_j c_ij (u_j − u_i)` with the pair-mean advecting velocity (energy-conserving up
-    /// to the discrete divergence).
+    /// to the discrete divergence; the default).
+    #[default]
     SkewSymmetric,
     /// First-order upwind: `N_i = Σ_j (c_ij − a_ij) (u_j − u_i)`.
     Upwind,

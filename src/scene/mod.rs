@@ -77,8 +77,8 @@ pub struct FlowConfig {
     pub motion: Motion,
     /// Integrator of the explicit terms.
     pub integrator: Integrator,
-    /// Discretisation of the convective term (Eulerian frame): `"central"` (default),
-    /// `"skew_symmetric"`, `"upwind"`, `"muscl"` or `"muscl_van_leer"` ([`ConvectionForm`],
+    /// Discretisation of the convective term (Eulerian frame): `"skew_symmetric"` (default),
+    /// `"central"`, `"upwind"`, `"muscl"` or `"muscl_van_leer"` ([`ConvectionForm`],
     /// formulas in [`crate::flow::convection`]).
     pub convection: ConvectionForm,
     /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
@@ -116,7 +116,7 @@ impl Default for FlowConfig {
             gradient: GradientKind::Difference,
             motion: Motion::Eulerian,
             integrator: Integrator::Ab2,
-            convection: ConvectionForm::Central,
+            convection: ConvectionForm::SkewSymmetric,
             viscous_theta: 0.5,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
