@@ -396,7 +396,8 @@ fn quick_cases() -> Vec<Case> {
         ("cavity_re100_cfl2_dtguard", Cavity, 100.0, 2.0, 2.0, Eulerian, Dt, "dt_too_large"),
         ("tg_re100_cfl2_dtguard", TaylorGreen, 100.0, 1.0, 2.0, Eulerian, Dt, "dt_too_large"),
         ("tg_re100_cfl16", TaylorGreen, 100.0, 5.0, 16.0, Eulerian, Blowup, "blow_up"),
-        // without the guard the same run "completes" with its energy multiplied by 10⁷
+        // without the guard the same run "completes" with its energy multiplied by 10⁷ (central
+        // convection, as the two above)
         ("tg_re100_cfl16_noguard", TaylorGreen, 100.0, 5.0, 16.0, Eulerian, None, "completed"),
         ("cavity_lagr_cfl40", Cavity, 100.0, 2.0, 40.0, Lagrangian, None, "escaped"),
     ];
@@ -409,7 +410,16 @@ fn quick_cases() -> Vec<Case> {
                 re,
                 n: 16,
                 motion,
-                convection: if name == "cavity_re1000_cfl1" {
+                // the blow-ups the guards must name are those of the central convection of
+                // before issue 15: the skew-symmetric default runs the Re 1000 cavity, and
+                // Taylor–Green at 16 Δt_CFL without the guard loses energy instead of gaining it
+                convection: if [
+                    "cavity_re1000_cfl1",
+                    "tg_re100_cfl16",
+                    "tg_re100_cfl16_noguard",
+                ]
+                .contains(&name)
+                {
                     ConvectionForm::Central
                 } else {
                     ConvectionForm::default()
