@@ -21,7 +21,7 @@ pub mod manufactured;
 pub mod taylor_green;
 
 use crate::boundary::Boundary;
-use crate::consistent::GradientKind;
+use crate::consistent::{GradientKind, LaplacianKind};
 use crate::error::{Error, InputError};
 use crate::flow::{
     ConvectionForm, FlowParams, FlowReport, Integrator, Motion, Shifting, Simulation,
@@ -83,6 +83,13 @@ pub struct FlowConfig {
     pub convection: ConvectionForm,
     /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
     pub viscous_theta: f64,
+    /// Laplacian of the viscous term (`"gpm"` or `"least_squares"`, [`LaplacianKind`]); `null`
+    /// (default) takes the operator set's (`gpm` for the GPM set, `least_squares` for the
+    /// consistent one). The least-squares one is exact on quadratic velocities that take the
+    /// wall value, where the GPM `Δh` with no-slip images is not within `h` of a wall (Re 1000
+    /// cavity, n = 48: RMS u / v against the extrapolated reference 2.6 % / 2.4 % vs 2.8 % /
+    /// 3.0 %).
+    pub laplacian: Option<LaplacianKind>,
     /// Particle shifting (Lagrangian runs only).
     pub shifting: Option<Shifting>,
     /// Volumes.
@@ -118,6 +125,7 @@ impl Default for FlowConfig {
             integrator: Integrator::Ab2,
             convection: ConvectionForm::SkewSymmetric,
             viscous_theta: 0.5,
+            laplacian: None,
             shifting: Some(Shifting::default()),
             volumes: VolumeRule::NumberDensity,
             pair_weights: Default::default(),
@@ -244,6 +252,9 @@ impl FlowConfig {
             projection = projection.with_consistent_operators();
         }
         projection.viscous_theta = self.viscous_theta;
+        if let Some(l) = self.laplacian {
+            projection.laplacian = l;
+        }
         projection.solve = self.solve;
         projection.allowed_floating = 1;
         projection.disconnected = self.disconnected.unwrap_or(match self.motion {
@@ -361,6 +372,7 @@ config_fields!(FlowConfig {
     integrator,
     convection,
     viscous_theta,
+    laplacian,
     shifting,
     volumes,
     pair_weights,
