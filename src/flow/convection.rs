@@ -49,8 +49,9 @@
 //!
 //! Measured (Re 1000 cavity, n = 48, Δt at the CFL limit 0.2 h/U, RMS against the extrapolated
 //! reference u / v): central blows up (at 0.15 h/U: 10.3 % / 13.4 %), skew-symmetric 2.8 % /
-//! 3.0 %, MUSCL 5.6 % / 2.7 %; the upwind dissipation over pairs as long as `h` is larger than
-//! the physical viscosity in the boundary layers (README, issue 15).
+//! 3.0 %, MUSCL 5.5 % / 4.3 %, MUSCL–van Leer 4.7 % / 4.5 %, first-order upwind 15 % / 17 %:
+//! the upwind dissipation over pairs as long as `h` is larger than the physical viscosity in
+//! the boundary layers (README, issue 15).
 
 use crate::boundary::Boundary;
 use crate::consistent::LsOperators;
