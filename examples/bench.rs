@@ -138,6 +138,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
             Motion::Eulerian
         },
         integrator: Integrator::Ab2,
+        convection: Default::default(),
         shifting: None,
         volumes: VolumeRule::NumberDensity,
         pair_weights: Default::default(),

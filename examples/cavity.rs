@@ -56,6 +56,10 @@ struct Args {
     /// Integrator of the explicit terms: ab2 or euler.
     #[arg(long, default_value = "ab2")]
     integrator: Integrator,
+    /// Convective term (Eulerian frame): skew-symmetric, central, upwind, muscl or
+    /// muscl-van-leer.
+    #[arg(long, default_value = "skew-symmetric")]
+    convection: gpm::flow::ConvectionForm,
     /// Implicit weight of the viscous term (0.5 Crank–Nicolson, 0 explicit).
     #[arg(long, default_value_t = 0.5)]
     theta: f64,
@@ -82,6 +86,13 @@ struct Args {
     /// operators, no-slip for the consistent ones), mirror or no-slip.
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
+    /// Operator set: auto (gpm on the lattice, consistent for moving particles), gpm or
+    /// consistent.
+    #[arg(long, default_value = "auto")]
+    operators: gpm::scene::OperatorSet,
+    /// Laplacian of the viscous term: gpm or least-squares (default: the operator set's).
+    #[arg(long)]
+    laplacian: Option<gpm::consistent::LaplacianKind>,
     /// Output directory.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -107,8 +118,11 @@ fn config(a: &Args) -> CavityConfig {
         c.h_over_dx = a.h_ratio;
         c.motion = a.motion;
         c.integrator = a.integrator;
+        c.convection = a.convection;
         c.viscous_theta = a.theta;
         c.scene.source_ghosts = a.source_ghosts;
+        c.operators = a.operators;
+        c.laplacian = a.laplacian;
         c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
     });
     if let Some(s) = a.shift {

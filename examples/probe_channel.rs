@@ -70,6 +70,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         limits,
         motion: Motion::Eulerian,
         integrator: Integrator::Ab2,
+        convection: Default::default(),
         shifting: None,
         volumes: VolumeRule::NumberDensity,
         pair_weights: PairWeights::Plain,

@@ -61,6 +61,10 @@ struct Args {
     /// Integrator of the explicit terms: ab2 or euler.
     #[arg(long, default_value = "ab2")]
     integrator: Integrator,
+    /// Convective term (Eulerian frame): skew-symmetric, central, upwind, muscl or
+    /// muscl-van-leer.
+    #[arg(long, default_value = "skew-symmetric")]
+    convection: gpm::flow::ConvectionForm,
     /// Implicit viscous weight θ.
     #[arg(long, default_value_t = 0.5)]
     theta: f64,
@@ -101,6 +105,7 @@ fn config(a: &Args) -> TaylorGreenConfig {
         c.h_over_dx = a.h_ratio;
         c.motion = a.motion;
         c.integrator = a.integrator;
+        c.convection = a.convection;
         c.viscous_theta = a.theta;
     });
     if let Some(s) = a.shift {

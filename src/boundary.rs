@@ -38,6 +38,13 @@ pub trait Boundary<const D: usize>: Send + Sync {
     fn fill_scalar(&self, role: &[Role], v: &mut [f64]);
     /// Continues a vector field into the ghosts.
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind);
+    /// Continues a velocity-gradient field `G[a][b] = ∂u_a/∂x_b` into the ghosts as the
+    /// gradient of the no-slip images: `G_g = σ G_src R`, `σ = (−1)^(walls crossed)` and `R`
+    /// the reflection (column `b` negated for each crossed wall normal to axis `b`). The
+    /// default (no ghosts) does nothing.
+    fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
+        let _ = (role, g);
+    }
     /// Moves ghosts to the images of their sources (after the sources moved).
     fn place_ghosts(&self, p: &mut Particles<D>);
     /// Drops every ghost and creates images of the fluid particles within `reach` of a wall.
@@ -320,6 +327,28 @@ impl<const D: usize> Boundary<D> for Walls<D> {
                         VectorKind::Velocity => self.velocity_image(s, *walls),
                         VectorKind::Mirror => self.mirror_image(s, *walls),
                     };
+                }
+            });
+    }
+
+    fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
+        let first = first_ghost(role).min(g.len());
+        let (src, ghosts) = g.split_at_mut(first);
+        ghosts
+            .par_iter_mut()
+            .zip(role[first..].par_iter())
+            .for_each(|(gg, r)| {
+                if let Role::Ghost { source, walls } = r {
+                    let s = &src[*source as usize];
+                    let (mut sigma, mut flip) = (1.0, [1.0; D]);
+                    for (k, w) in self.walls.iter().enumerate() {
+                        if walls & (1 << k) != 0 {
+                            sigma = -sigma;
+                            flip[w.axis] = -flip[w.axis];
+                        }
+                    }
+                    *gg =
+                        std::array::from_fn(|a| std::array::from_fn(|b| sigma * flip[b] * s[a][b]));
                 }
             });
     }

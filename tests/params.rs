@@ -30,6 +30,7 @@ fn flow_params(dx: f64, motion: Motion) -> FlowParams<2> {
         limits: TimeStepLimits::default(),
         motion,
         integrator: Integrator::Ab2,
+        convection: Default::default(),
         shifting: None,
         volumes: VolumeRule::NumberDensity,
         pair_weights: Default::default(),

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 pub use crate::time::{DtLimit, StabilityGuard, TimeStepLimits};
-pub use convection::{Convection, Integrator};
+pub use convection::{Convection, ConvectionForm, Integrator};
 pub use free_surface::{FreeSurface, SurfaceCount};
 pub use shifting::Shifting;
 
@@ -76,6 +76,8 @@ pub struct FlowParams<const D: usize> {
     pub motion: Motion,
     /// Integrator of the explicit terms.
     pub integrator: Integrator,
+    /// Discretisation of the convective term (Eulerian frame; [`ConvectionForm`]).
+    pub convection: ConvectionForm,
     /// Shifting (Lagrangian only; `None` = pure Lagrangian).
     pub shifting: Option<Shifting>,
     /// Volumes.
@@ -633,7 +635,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         // is counted in the predictor stage's time
         let t_rhs = Instant::now();
         let accel = if self.plan.has(Stage::Convection) {
-            // N = (u·∇h)u with the difference gradient; AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
+            // N = (u·∇h)u (convection::ConvectionForm); AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
             if self.plan.has(Stage::Ghosts) {
                 self.boundary.fill_vector(
                     &self.particles.role,
@@ -649,8 +651,11 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             self.convection.accel_into(
                 &self.nl,
                 &self.particles.vol,
+                &self.particles.role,
+                &self.boundary,
                 ls,
                 &self.particles.u,
+                self.params.convection,
                 self.params.integrator,
                 dt,
                 &mut self.work,
