@@ -128,9 +128,9 @@ pub fn front_and_height(sim: &Simulation<2, Walls<2>>) -> (f64, f64) {
     let dx = sim.params.dx;
     let attached = |i: usize| {
         p.role[i].is_fluid()
-            || nl.row(i).any(|k| {
-                nl.w()[k] > 0.0 && p.role[nl.indices()[k] as usize].is_fluid()
-            })
+            || nl
+                .row(i)
+                .any(|k| nl.w()[k] > 0.0 && p.role[nl.indices()[k] as usize].is_fluid())
     };
     let (mut z, mut eta) = (0.0f64, 0.0f64);
     for i in 0..p.len() {
