@@ -302,55 +302,27 @@ impl<const D: usize> Boundary<D> for Walls<D> {
     }
 
     fn fill_scalar(&self, role: &[Role], v: &mut [f64]) {
-        let first = first_ghost(role);
-        let (src, ghosts) = v.split_at_mut(first);
-        ghosts
-            .par_iter_mut()
-            .zip(role[first..].par_iter())
-            .for_each(|(g, r)| {
-                if let Role::Ghost { source, .. } = r {
-                    *g = src[*source as usize];
-                }
-            });
+        fill_from_sources(role, v, |s, _| *s);
     }
 
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind) {
-        let first = first_ghost(role);
-        let (src, ghosts) = v.split_at_mut(first);
-        ghosts
-            .par_iter_mut()
-            .zip(role[first..].par_iter())
-            .for_each(|(g, r)| {
-                if let Role::Ghost { source, walls } = r {
-                    let s = &src[*source as usize];
-                    *g = match kind {
-                        VectorKind::Velocity => self.velocity_image(s, *walls),
-                        VectorKind::Mirror => self.mirror_image(s, *walls),
-                    };
-                }
-            });
+        fill_from_sources(role, v, |s, walls| match kind {
+            VectorKind::Velocity => self.velocity_image(s, walls),
+            VectorKind::Mirror => self.mirror_image(s, walls),
+        });
     }
 
     fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
-        let first = first_ghost(role).min(g.len());
-        let (src, ghosts) = g.split_at_mut(first);
-        ghosts
-            .par_iter_mut()
-            .zip(role[first..].par_iter())
-            .for_each(|(gg, r)| {
-                if let Role::Ghost { source, walls } = r {
-                    let s = &src[*source as usize];
-                    let (mut sigma, mut flip) = (1.0, [1.0; D]);
-                    for (k, w) in self.walls.iter().enumerate() {
-                        if walls & (1 << k) != 0 {
-                            sigma = -sigma;
-                            flip[w.axis] = -flip[w.axis];
-                        }
-                    }
-                    *gg =
-                        std::array::from_fn(|a| std::array::from_fn(|b| sigma * flip[b] * s[a][b]));
+        fill_from_sources(role, g, |s, walls| {
+            let (mut sigma, mut flip) = (1.0, [1.0; D]);
+            for (k, w) in self.walls.iter().enumerate() {
+                if walls & (1 << k) != 0 {
+                    sigma = -sigma;
+                    flip[w.axis] = -flip[w.axis];
                 }
-            });
+            }
+            std::array::from_fn(|a| std::array::from_fn(|b| sigma * flip[b] * s[a][b]))
+        });
     }
 
     fn place_ghosts(&self, p: &mut Particles<D>) {
@@ -560,6 +532,25 @@ impl<const D: usize> Boundary<D> for NoBoundary {
     fn confine(&self, _: &mut Particles<D>) -> Result<(), InputError> {
         Ok(())
     }
+}
+
+/// Every ghost's value from its source's, `v_g = f(v_src, walls)` (entries past the end of `v`
+/// are left alone).
+fn fill_from_sources<T: Copy + Send + Sync>(
+    role: &[Role],
+    v: &mut [T],
+    f: impl Fn(&T, u8) -> T + Sync,
+) {
+    let first = first_ghost(role).min(v.len());
+    let (src, ghosts) = v.split_at_mut(first);
+    ghosts
+        .par_iter_mut()
+        .zip(role[first..].par_iter())
+        .for_each(|(g, r)| {
+            if let Role::Ghost { source, walls } = r {
+                *g = f(&src[*source as usize], *walls);
+            }
+        });
 }
 
 /// Index of the first ghost (ghosts are kept after every other particle).

@@ -271,24 +271,9 @@ impl Scene<2> for DamBreak {
     }
 
     fn tables(_cfg: &DamBreakConfig, res: &DamBreakResult) -> Vec<Table> {
-        use std::fmt::Write;
-        let mut f = String::from("T,Z\n");
-        for (t, z) in &res.front {
-            let _ = writeln!(f, "{t:.6},{z:.6}");
-        }
-        let mut h = String::from("tau,H\n");
-        for (t, y) in &res.height {
-            let _ = writeln!(h, "{t:.6},{y:.6}");
-        }
         vec![
-            Table {
-                name: "front.csv".into(),
-                text: f,
-            },
-            Table {
-                name: "height.csv".into(),
-                text: h,
-            },
+            Table::pairs("front.csv", "T,Z", &res.front),
+            Table::pairs("height.csv", "tau,H", &res.height),
         ]
     }
 

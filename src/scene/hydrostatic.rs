@@ -322,24 +322,9 @@ impl Scene<2> for Hydrostatic {
     }
 
     fn tables(_cfg: &HydrostaticConfig, res: &HydrostaticResult) -> Vec<Table> {
-        use std::fmt::Write;
-        let mut t = String::from("y,p\n");
-        for (y, p) in &res.profile {
-            let _ = writeln!(t, "{y:.8},{p:.10}");
-        }
-        let mut e = String::from("t,kinetic_energy\n");
-        for (time, k) in &res.energy {
-            let _ = writeln!(e, "{time:.8},{k:.10e}");
-        }
         vec![
-            Table {
-                name: "pressure.csv".into(),
-                text: t,
-            },
-            Table {
-                name: "energy.csv".into(),
-                text: e,
-            },
+            Table::pairs("pressure.csv", "y,p", &res.profile),
+            Table::pairs("energy.csv", "t,kinetic_energy", &res.energy),
         ]
     }
 }

@@ -902,6 +902,22 @@ pub struct Table {
     pub text: String,
 }
 
+impl Table {
+    /// A two-column CSV table `name` with the header `header` (`"T,Z"`) and one row per pair,
+    /// numbers in their shortest exact form.
+    pub fn pairs(name: &str, header: &str, rows: &[(f64, f64)]) -> Self {
+        use std::fmt::Write;
+        let mut text = format!("{header}\n");
+        for (a, b) in rows {
+            let _ = writeln!(text, "{a},{b}");
+        }
+        Table {
+            name: name.into(),
+            text,
+        }
+    }
+}
+
 /// A flow scene in `D` dimensions: how it is built from its configuration, what it observes
 /// every step, and what it reports at the end. [`run_scene`] drives it.
 pub trait Scene<const D: usize>: SceneParams {
