@@ -142,3 +142,43 @@ fn the_dam_break_front_starts_at_the_measured_pace() {
     assert!(h > 0.95 && h <= 1.0 + 1e-9, "height H = {h}");
     assert_eq!(r.monitor.max_floating, 0);
 }
+
+/// A recorded tank reads back with its surface count in every step's diagnostics (and the
+/// replay CSV's last two columns).
+#[test]
+fn the_surface_count_is_recorded_every_step() {
+    use gpm::record::replay::Replay;
+    use gpm::record::{RecordLevel, RecorderOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let cfg = HydrostaticConfig::default().with(|c| {
+        c.n = 16;
+        c.t_end = 0.2;
+    });
+    let done = gpm::scene::run_recorded(
+        &cfg,
+        &path,
+        RecorderOptions::new(RecordLevel::Diagnostics, 0),
+        &cfg.record_header(),
+        |_| {},
+        |_, _| Ok(std::ops::ControlFlow::Continue(())),
+    )
+    .unwrap();
+    let run = done.run.unwrap();
+    done.record.unwrap();
+    let replay = Replay::open(&path).unwrap();
+    assert_eq!(replay.steps.len() as u64, run.sim.steps);
+    for d in &replay.steps {
+        assert_eq!(d.surface_particles, Some(16), "step {}", d.step);
+        assert_eq!(d.splash_particles, Some(0), "step {}", d.step);
+    }
+    let csv = dir.path().join("d.csv");
+    replay.write_csv(&csv).unwrap();
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert!(lines
+        .next()
+        .unwrap()
+        .ends_with(",surface_particles,splash_particles"));
+    assert!(lines.next().unwrap().ends_with(",16,0"));
+}

@@ -864,7 +864,7 @@ impl Replay {
              connectivity_ok,c0,stability_ratio,min_spacing,correction_ratio,energy_growth,solver,unknowns,nnz,iterations,abs_residual,\
              rel_residual,compatibility_defect,div_before,div_after,kinetic_energy,max_speed,\
              neighbors_rebuilt,max_shift,t_neighbors,t_predictor,t_diagnostics,t_source,\
-             t_solve,t_correction,t_advect,t_total,t_record"
+             t_solve,t_correction,t_advect,t_total,t_record,surface_particles,splash_particles"
         )
         .map_err(io)?;
         for d in &self.steps {
@@ -876,7 +876,7 @@ impl Replay {
                 .unwrap_or_default();
             writeln!(
                 w,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
                 Num(d.time),
                 Num(d.dt),
@@ -913,7 +913,9 @@ impl Replay {
                 Num(t.correction),
                 Num(t.advect),
                 Num(t.total),
-                Num(t.record)
+                Num(t.record),
+                d.surface_particles.map(|v| v.to_string()).unwrap_or_default(),
+                d.splash_particles.map(|v| v.to_string()).unwrap_or_default()
             )
             .map_err(io)?;
         }
