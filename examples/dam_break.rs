@@ -17,42 +17,20 @@ mod common;
 
 use anyhow::Result;
 use clap::Parser;
-use gpm::scene::dam_break::DamBreakConfig;
-use std::path::PathBuf;
+use gpm::scene::dam_break::DamBreak;
 
 #[derive(Parser, Debug)]
 #[command(about = "Dam break (Martin & Moyce 1952): surge front and column height")]
 struct Args {
-    /// Particles across the column width (default 40).
-    #[arg(long)]
-    n: Option<usize>,
-    /// End time T = t √(2g/a) (default 3).
-    #[arg(long)]
-    t_end: Option<f64>,
-    /// Reynolds number √(g a³)/ν.
-    #[arg(long)]
-    re: Option<f64>,
-    /// A configuration file (JSON: any of the scene's keys; the flags above override it).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Output directory.
-    #[arg(long, default_value = "results/dam_break")]
-    out: PathBuf,
+    #[command(flatten)]
+    run: common::RunArgs,
 }
 
 fn main() -> Result<()> {
     let a = Args::parse();
-    let base: DamBreakConfig = common::load(a.config.as_deref())?;
-    let cfg = base.with(|c| {
-        if let Some(n) = a.n {
-            c.n = n;
-        }
-        if let Some(t) = a.t_end {
-            c.t_end = t / (2.0 * c.scene.gravity).sqrt();
-        }
-        if let Some(re) = a.re {
-            c.re = re;
-        }
-    });
-    common::run_into(&cfg, &a.out, true)
+    // T = t √(2g/a) with a = 1
+    let cfg = a
+        .run
+        .config::<DamBreak>(|c, t| t / (2.0 * c.scene.gravity).sqrt())?;
+    common::run_into(&cfg, &a.run.out::<DamBreak>(), true)
 }

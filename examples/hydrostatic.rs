@@ -15,36 +15,17 @@ mod common;
 
 use anyhow::Result;
 use clap::Parser;
-use gpm::scene::hydrostatic::HydrostaticConfig;
-use std::path::PathBuf;
+use gpm::scene::hydrostatic::Hydrostatic;
 
 #[derive(Parser, Debug)]
 #[command(about = "A tank at rest with a free surface: hydrostatic pressure, drift, energy")]
 struct Args {
-    /// Particles across the tank (default 40).
-    #[arg(long)]
-    n: Option<usize>,
-    /// End time in units of √(H/g) (default 5).
-    #[arg(long)]
-    t_end: Option<f64>,
-    /// A configuration file (JSON: any of the scene's keys; the flags above override it).
-    #[arg(long)]
-    config: Option<PathBuf>,
-    /// Output directory.
-    #[arg(long, default_value = "results/hydrostatic")]
-    out: PathBuf,
+    #[command(flatten)]
+    run: common::RunArgs,
 }
 
 fn main() -> Result<()> {
     let a = Args::parse();
-    let base: HydrostaticConfig = common::load(a.config.as_deref())?;
-    let cfg = base.with(|c| {
-        if let Some(n) = a.n {
-            c.n = n;
-        }
-        if let Some(t) = a.t_end {
-            c.t_end = t;
-        }
-    });
-    common::run_into(&cfg, &a.out, false)
+    let cfg = a.run.config::<Hydrostatic>(|_, t| t)?;
+    common::run_into(&cfg, &a.run.out::<Hydrostatic>(), false)
 }

@@ -7,6 +7,55 @@ use gpm::scene::{run_recorded, Scene, SceneConfig};
 use std::ops::ControlFlow;
 use std::path::Path;
 
+/// The command line both examples share.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// Particles across the tank (hydrostatic) or the column (dam break); default 40.
+    #[arg(long)]
+    pub n: Option<usize>,
+    /// End time in the scene's unit: √(H/g) for the tank (default 5), T = t√(2g/a) for the
+    /// dam break (default 3).
+    #[arg(long)]
+    pub t_end: Option<f64>,
+    /// Reynolds number √(g L³)/ν (L the depth or the column width).
+    #[arg(long)]
+    pub re: Option<f64>,
+    /// A configuration file (JSON: any of the scene's keys; the flags above override it).
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Output directory (default results/<scene>).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+}
+
+impl RunArgs {
+    /// The configuration file's (or the defaults) with the flags applied; `t_end` is converted
+    /// to the simulation's time by `to_time`.
+    pub fn config<S: gpm::scene::SceneParams>(
+        &self,
+        to_time: impl Fn(&SceneConfig<S>, f64) -> f64,
+    ) -> Result<SceneConfig<S>> {
+        let mut c: SceneConfig<S> = load(self.config.as_deref())?;
+        if let Some(n) = self.n {
+            c.n = n;
+        }
+        if let Some(t) = self.t_end {
+            c.t_end = to_time(&c, t);
+        }
+        if let Some(re) = self.re {
+            c.re = re;
+        }
+        Ok(c)
+    }
+
+    /// The output directory.
+    pub fn out<S: gpm::scene::SceneParams>(&self) -> std::path::PathBuf {
+        self.out
+            .clone()
+            .unwrap_or_else(|| Path::new("results").join(S::NAME))
+    }
+}
+
 /// The configuration in `path` (a JSON object of the scene's keys, or a recording's
 /// `/config`), the scene's defaults without one.
 pub fn load<S: gpm::scene::SceneParams>(path: Option<&Path>) -> Result<SceneConfig<S>> {
