@@ -131,13 +131,6 @@ pub fn lattice_number_density<const D: usize>(kernel: &Kernel<D>, dx: f64) -> f6
     total
 }
 
-/// Number density `Σ_{j≠i} w_h(r_ij)` of every particle (ghost rows included).
-pub fn number_density<const D: usize>(nl: &NeighborList<D>) -> Vec<f64> {
-    (0..nl.len())
-        .map(|i| nl.row(i).map(|k| nl.w()[k]).sum())
-        .collect()
-}
-
 /// Sets the role of every fluid and band particle of `p` by its number density against
 /// `threshold · n0`; with `reset_pressure` a band particle gets the band's pressure, zero (else
 /// it keeps its pressure for [`set_band_pressure`]). Ghosts keep their role (their source's

@@ -61,7 +61,7 @@ impl SceneParams for DamBreak {
     const NAME: &'static str = "dam_break";
     const MIN_N: usize = 8;
 
-    /// The free-surface defaults ([`free_surface_flow`]) with the non-incremental scheme and
+    /// The free-surface defaults (`hydrostatic::free_surface_flow`) with the non-incremental scheme and
     /// `h = 4Δx`: measured at n = 40, the incremental scheme's pressure grows in a mode along
     /// the floor until the run blows up (T = 0.76 at `h = 3Δx`, T = 2.0 at `4Δx`), and with
     /// `3Δx` a spurious fast splash shrinks the time step (1 491 steps against 301).
