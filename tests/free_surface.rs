@@ -63,8 +63,8 @@ fn walls_continue_a_hydrostatic_pressure_into_their_images() {
         let mut pressure = p.p.clone();
         walls.fill_pressure(&p.x, &p.role, &mut pressure, [rho * g[0], rho * g[1]]);
         let mut corners = 0;
-        for j in first..p.len() {
-            let Role::Ghost { source, walls } = p.role[j] else {
+        for (j, role) in p.role.iter().enumerate().skip(first) {
+            let Role::Ghost { source, walls } = *role else {
                 continue;
             };
             corners += usize::from(walls.count_ones() == 2);
