@@ -47,8 +47,9 @@ pub trait Boundary<const D: usize>: Send + Sync {
     /// Continues a vector field into the ghosts.
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind);
     /// Continues a velocity-gradient field `G[a][b] = ∂u_a/∂x_b` into the ghosts as the
-    /// gradient of the no-slip images: `G_g = σ G_src R`, `σ = (−1)^(walls crossed)` and `R`
-    /// the reflection (column `b` negated for each crossed wall normal to axis `b`). The
+    /// gradient of the velocity images: `G_g = Σ G_src R`, `Σ` the diagonal signs of the
+    /// velocity rule (all −1 per no-slip wall crossed, −1 on the normal component per free-slip
+    /// one) and `R` the reflection (column `b` negated for each crossed wall normal to axis `b`). The
     /// default (no ghosts) does nothing.
     fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
         let _ = (role, g);
@@ -90,11 +91,13 @@ pub trait Boundary<const D: usize>: Send + Sync {
         let _ = (x, margin);
         [0.0; D]
     }
-    /// The no-slip rule of a ghost reflected across the walls in `walls` as an affine map
-    /// `u_g = σ u_src + b` (`σ = ±1`), for implicit solves that need it as matrix entries.
-    fn velocity_affine(&self, walls: u8) -> (f64, [f64; D]) {
+    /// The velocity rule of a ghost reflected across the walls in `walls` as an affine map
+    /// `u_g[d] = σ[d] u_src[d] + b[d]` (`σ[d] = ±1`: all −1 across one no-slip wall, −1 only for
+    /// the normal component across a free-slip one), for implicit solves that need it as matrix
+    /// entries.
+    fn velocity_affine(&self, walls: u8) -> ([f64; D], [f64; D]) {
         let _ = walls;
-        (1.0, [0.0; D])
+        ([1.0; D], [0.0; D])
     }
     /// Checks that the ghosts of `p` are those this boundary would make and place for an
     /// influence radius `h`: for [`Walls`], every ghost at the image of its source with its
@@ -119,6 +122,10 @@ pub struct Wall<const D: usize> {
     pub inward: f64,
     /// Wall velocity (tangential for a moving lid).
     pub velocity: [f64; D],
+    /// Free-slip (`true`: no penetration, no friction — the image keeps the tangential velocity
+    /// and reverses the normal one) or no-slip (`false`, the default: the image's velocity is
+    /// `2U − u`).
+    pub slip: bool,
 }
 
 impl<const D: usize> Wall<D> {
@@ -127,6 +134,30 @@ impl<const D: usize> Wall<D> {
     pub fn distance(&self, x: &[f64; D]) -> f64 {
         self.inward * (x[self.axis] - self.position)
     }
+    /// The velocity of the image of a particle moving with `v`: `2U − v` (no-slip), or `v` with
+    /// its normal component `2U_n − v_n` (free-slip).
+    #[inline]
+    pub fn velocity_image(&self, v: &[f64; D]) -> [f64; D] {
+        let u = self.velocity;
+        if self.slip {
+            let mut y = *v;
+            y[self.axis] = 2.0 * u[self.axis] - v[self.axis];
+            y
+        } else {
+            std::array::from_fn(|a| 2.0 * u[a] - v[a])
+        }
+    }
+
+    /// The signs of [`velocity_image`](Self::velocity_image)'s linear part, per component.
+    #[inline]
+    pub fn velocity_signs(&self) -> [f64; D] {
+        if self.slip {
+            std::array::from_fn(|a| if a == self.axis { -1.0 } else { 1.0 })
+        } else {
+            [-1.0; D]
+        }
+    }
+
     /// Mirror image of `x`.
     #[inline]
     pub fn reflect(&self, x: &[f64; D]) -> [f64; D] {
@@ -155,12 +186,14 @@ impl<const D: usize> Walls<D> {
                 position: lo[a],
                 inward: 1.0,
                 velocity: [0.0; D],
+                slip: false,
             });
             walls.push(Wall {
                 axis: a,
                 position: hi[a],
                 inward: -1.0,
                 velocity: [0.0; D],
+                slip: false,
             });
         }
         Walls {
@@ -197,12 +230,14 @@ impl<const D: usize> Walls<D> {
                     position: lo[a],
                     inward: 1.0,
                     velocity: [0.0; D],
+                    slip: false,
                 },
                 Wall {
                     axis: a,
                     position: hi[a],
                     inward: -1.0,
                     velocity: [0.0; D],
+                    slip: false,
                 },
             ],
             periodic: Periodicity { lo: plo, len },
@@ -235,18 +270,14 @@ impl<const D: usize> Walls<D> {
             .filter(|k| mask & (1 << k) != 0)
             .collect();
         match ks.len() {
-            1 => {
-                let u = self.walls[ks[0]].velocity;
-                std::array::from_fn(|a| 2.0 * u[a] - v[a])
-            }
+            1 => self.walls[ks[0]].velocity_image(v),
             _ => {
                 // apply the walls in turn, in both (all) cyclic orders, and average
                 let mut acc = [0.0; D];
                 for start in 0..ks.len() {
                     let mut y = *v;
                     for m in 0..ks.len() {
-                        let u = self.walls[ks[(start + m) % ks.len()]].velocity;
-                        y = std::array::from_fn(|a| 2.0 * u[a] - y[a]);
+                        y = self.walls[ks[(start + m) % ks.len()]].velocity_image(&y);
                     }
                     for a in 0..D {
                         acc[a] += y[a];
@@ -255,6 +286,28 @@ impl<const D: usize> Walls<D> {
                 acc.map(|s| s / ks.len() as f64)
             }
         }
+    }
+
+    /// The signs of the linear part of the velocity rule across the walls in `mask`.
+    fn velocity_signs(&self, mask: u8) -> [f64; D] {
+        let mut sigma = [1.0; D];
+        for (k, w) in self.walls.iter().enumerate() {
+            if mask & (1 << k) != 0 {
+                let s = w.velocity_signs();
+                for a in 0..D {
+                    sigma[a] *= s[a];
+                }
+            }
+        }
+        sigma
+    }
+
+    /// Every wall free-slip ([`Wall::slip`]).
+    pub fn free_slip(mut self) -> Self {
+        for w in &mut self.walls {
+            w.slip = true;
+        }
+        self
     }
 
     /// The images of a point at `x`: one mask (bit `k` = wall `k`) per non-empty subset of the
@@ -296,13 +349,11 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         !self.walls.is_empty()
     }
 
-    fn velocity_affine(&self, walls: u8) -> (f64, [f64; D]) {
-        let sigma = if walls.count_ones() % 2 == 1 {
-            -1.0
-        } else {
-            1.0
-        };
-        (sigma, self.velocity_image(&[0.0; D], walls))
+    fn velocity_affine(&self, walls: u8) -> ([f64; D], [f64; D]) {
+        (
+            self.velocity_signs(walls),
+            self.velocity_image(&[0.0; D], walls),
+        )
     }
 
     fn periodicity(&self) -> Periodicity<D> {
@@ -340,14 +391,14 @@ impl<const D: usize> Boundary<D> for Walls<D> {
 
     fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
         fill_from_sources(role, g, |s, walls| {
-            let (mut sigma, mut flip) = (1.0, [1.0; D]);
+            let sigma = self.velocity_signs(walls);
+            let mut flip = [1.0; D];
             for (k, w) in self.walls.iter().enumerate() {
                 if walls & (1 << k) != 0 {
-                    sigma = -sigma;
                     flip[w.axis] = -flip[w.axis];
                 }
             }
-            std::array::from_fn(|a| std::array::from_fn(|b| sigma * flip[b] * s[a][b]))
+            std::array::from_fn(|a| std::array::from_fn(|b| sigma[a] * flip[b] * s[a][b]))
         });
     }
 

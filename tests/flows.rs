@@ -196,6 +196,7 @@ fn hydrostatic_error(n: usize, scheme: Scheme) -> (f64, f64) {
         position,
         inward,
         velocity: [0.0; 2],
+        slip: false,
     };
     let walls = Walls {
         walls: vec![wall(0, 0.0, 1.0), wall(0, 1.0, -1.0), wall(1, 0.0, 1.0)],
@@ -288,12 +289,14 @@ fn poiseuille_channel_with_periodic_axis_and_walls() {
                     position: 0.0,
                     inward: 1.0,
                     velocity: [0.0; 2],
+                    slip: false,
                 },
                 Wall {
                     axis: 1,
                     position: 1.0,
                     inward: -1.0,
                     velocity: [0.0; 2],
+                    slip: false,
                 },
             ],
             periodic: Periodicity {

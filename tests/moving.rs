@@ -65,6 +65,126 @@ fn lid_ghosts_carry_twice_the_wall_velocity_minus_the_source() {
     assert_eq!(seen, [1, 1, 3]);
 }
 
+/// A free-slip wall's image keeps the tangential velocity and reverses the normal one (about
+/// the wall's own normal velocity); `velocity_affine` is the same rule as matrix entries — for
+/// free-slip, no-slip and mixed corners alike (rules written out by hand).
+#[test]
+fn free_slip_images_keep_the_tangential_velocity_and_reverse_the_normal_one() {
+    for slip_left in [false, true] {
+        let mut walls = Walls::<2>::closed_box([0.0, 0.0], [1.0, 1.0]).free_slip();
+        for w in &mut walls.walls {
+            if w.axis == 0 && w.inward > 0.0 {
+                w.slip = slip_left;
+            }
+        }
+        let mut p = Particles::<2>::new();
+        p.push([0.5, 0.04], [0.3, -0.2], 0.0, 0.01, Role::Fluid); // floor only
+        p.push([0.03, 0.05], [0.2, 0.4], 0.0, 0.01, Role::Fluid); // left and floor
+        walls.make_ghosts(&mut p, 0.1);
+        walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+        let mut checked = 0;
+        for g in 2..p.len() {
+            let Role::Ghost {
+                source,
+                walls: mask,
+            } = p.role[g]
+            else {
+                panic!("particle {g} should be a ghost")
+            };
+            let (xs, us, xg, ug) = (p.x[source as usize], p.u[source as usize], p.x[g], p.u[g]);
+            let across_floor = (xs[1] + xg[1]).abs() < 1e-12;
+            let across_left = (xs[0] + xg[0]).abs() < 1e-12;
+            // floor: free-slip (x kept, y reversed); left: free-slip (x reversed, y kept) or
+            // no-slip (both reversed); the two reflections commute here (walls at rest)
+            let mut expected = us;
+            if across_floor {
+                expected[1] = -expected[1];
+            }
+            if across_left {
+                expected[0] = -expected[0];
+                if !slip_left {
+                    expected[1] = -expected[1];
+                }
+            }
+            let (sigma, b) = walls.velocity_affine(mask);
+            for a in 0..2 {
+                assert!(
+                    (ug[a] - expected[a]).abs() < 1e-14,
+                    "ghost {g}: {ug:?} != {expected:?}"
+                );
+                assert!(
+                    (sigma[a] * us[a] + b[a] - expected[a]).abs() < 1e-14,
+                    "affine of {g}"
+                );
+            }
+            checked += 1;
+        }
+        assert_eq!(checked, 4, "one floor image, three for the corner particle");
+    }
+}
+
+/// The implicit viscous solve with free-slip walls (a different matrix per component) keeps a
+/// uniform flow along the walls exactly — no friction — while no-slip walls brake it next to
+/// them.
+#[test]
+fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
+    use gpm::geometry::lattice;
+    use gpm::kernel::Weight;
+    use gpm::neighbors::{NeighborConfig, NeighborList};
+    use gpm::poisson::{HelmholtzSolver, SolveParams};
+    let dx = 1.0 / 20.0;
+    for slip in [true, false] {
+        let mut walls = Walls::<2>::channel([0.0, 0.0], [1.0, 1.0]);
+        if slip {
+            walls = walls.free_slip();
+        }
+        let mut p = Particles::<2>::new();
+        for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+            p.push(x, [1.0, 0.0], 0.0, dx * dx, Role::Fluid);
+        }
+        let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0)
+            .with_periodicity(walls.periodicity());
+        walls.make_ghosts(&mut p, config.h);
+        walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+        let nl = NeighborList::build(config, &p.x).unwrap();
+        let rule = |j: usize| match p.role[j] {
+            Role::Ghost { walls: mask, .. } => walls.velocity_affine(mask),
+            _ => ([1.0; 2], [0.0; 2]),
+        };
+        let r = p.u.clone();
+        let mut u = p.u.clone();
+        let mut solver = HelmholtzSolver::new();
+        let c = 0.01; // ν Δt with ν = 0.1, Δt = 0.1
+        solver
+            .solve(
+                &nl,
+                &p.vol,
+                &p.role,
+                &rule,
+                c,
+                &r,
+                &mut u,
+                &SolveParams::default(),
+            )
+            .unwrap();
+        let fluid = (0..p.len()).filter(|&i| p.role[i].is_fluid());
+        let slowest = fluid.map(|i| u[i][0]).fold(f64::INFINITY, f64::min);
+        let largest_v = (0..p.len())
+            .filter(|&i| p.role[i].is_fluid())
+            .map(|i| u[i][1].abs())
+            .fold(0.0, f64::max);
+        assert!(largest_v < 1e-12, "slip {slip}: v = {largest_v}");
+        if slip {
+            assert!(
+                (slowest - 1.0).abs() < 1e-10,
+                "free-slip: slowest u = {slowest}"
+            );
+        } else {
+            assert!(slowest < 0.9, "no-slip: slowest u = {slowest}");
+        }
+    }
+}
+
 /// A moving particle the flow carries towards a wall is kept `WALL_MARGIN Δx` inside it (and
 /// counted), so no particle ever crosses a wall; the monitor sees `c0` change.
 #[test]

@@ -48,20 +48,70 @@ impl HelmholtzSolver {
     }
 
     /// Solves `u_i − c Δh u_i = r_i` at the fluid particles for each component. `ghost_rule(j)`
-    /// gives `(σ, b)` of ghost `j`; Dirichlet particles keep the values in `u`. Writes the fluid
-    /// rows of `u` (other rows are left as they are).
-    // `d` runs over the components of each `u[p]`
-    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    /// gives `(σ, b)` of ghost `j`, per component (`u_g[d] = σ[d] u_src[d] + b[d]`); Dirichlet
+    /// particles keep the values in `u`. Writes the fluid rows of `u` (other rows are left as
+    /// they are). When every ghost has the same `σ` for all components (no-slip walls) one
+    /// matrix serves them all; otherwise (a free-slip wall: `σ = −1` for the normal component,
+    /// `+1` for the tangential ones) each component has its own matrix and is solved in turn.
+    #[allow(clippy::too_many_arguments)]
     pub fn solve<const D: usize>(
         &mut self,
         nl: &NeighborList<D>,
         vol: &[f64],
         role: &[Role],
-        ghost_rule: &dyn Fn(usize) -> (f64, [f64; D]),
+        ghost_rule: &dyn Fn(usize) -> ([f64; D], [f64; D]),
         c: f64,
         r: &[[f64; D]],
         u: &mut [[f64; D]],
         params: &SolveParams,
+    ) -> Result<SolveInfo, SolveError> {
+        let uniform = (0..role.len())
+            .filter(|&j| matches!(role[j], Role::Ghost { .. }))
+            .all(|j| {
+                let (s, _) = ghost_rule(j);
+                s.iter().all(|&v| v == s[0])
+            });
+        if uniform {
+            return self.solve_group(nl, vol, role, ghost_rule, c, r, u, params, 0..D);
+        }
+        let mut total: Option<SolveInfo> = None;
+        for d in 0..D {
+            let info = self.solve_group(nl, vol, role, ghost_rule, c, r, u, params, d..d + 1)?;
+            total = Some(match total {
+                None => info,
+                Some(t) => SolveInfo {
+                    iters: t.iters + info.iters,
+                    abs_residual: t.abs_residual.max(info.abs_residual),
+                    rel_residual: t.rel_residual.max(info.rel_residual),
+                    pattern_rebuilt: t.pattern_rebuilt || info.pattern_rebuilt,
+                    reused_symbolic: t.reused_symbolic && info.reused_symbolic,
+                    reused_numeric: t.reused_numeric && info.reused_numeric,
+                    assemble_seconds: t.assemble_seconds + info.assemble_seconds,
+                    symbolic_seconds: t.symbolic_seconds + info.symbolic_seconds,
+                    numeric_seconds: t.numeric_seconds + info.numeric_seconds,
+                    solve_seconds: t.solve_seconds + info.solve_seconds,
+                    amg_setup_seconds: t.amg_setup_seconds + info.amg_setup_seconds,
+                    ..info
+                },
+            });
+        }
+        Ok(total.expect("D ≥ 1 components"))
+    }
+
+    /// [`solve`](Self::solve) for the components `comps`, which share their ghosts' `σ`.
+    // `d` runs over the components of each `u[p]`
+    #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
+    fn solve_group<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        ghost_rule: &dyn Fn(usize) -> ([f64; D], [f64; D]),
+        c: f64,
+        r: &[[f64; D]],
+        u: &mut [[f64; D]],
+        params: &SolveParams,
+        comps: std::ops::Range<usize>,
     ) -> Result<SolveInfo, SolveError> {
         let t0 = Instant::now();
         let n = role.len();
@@ -70,12 +120,12 @@ impl HelmholtzSolver {
         for j in 0..n {
             if let Role::Ghost { source, .. } = role[j] {
                 let (s, b) = ghost_rule(j);
-                self.sigma[j] = s;
+                self.sigma[j] = s[comps.start];
                 consts[j] = b;
                 if role[source as usize] == Role::Dirichlet {
                     // the image of a band particle: a given value, σ u_src + b
                     let us = u[source as usize];
-                    consts[j] = std::array::from_fn(|d| s * us[d] + b[d]);
+                    consts[j] = std::array::from_fn(|d| s[d] * us[d] + b[d]);
                 }
             } else {
                 self.sigma[j] = 1.0;
@@ -105,7 +155,7 @@ impl HelmholtzSolver {
                 };
                 if is_const {
                     let w = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
-                    for d in 0..D {
+                    for d in comps.clone() {
                         rhs_const[uix][d] += w * consts[j][d];
                     }
                 }
@@ -137,7 +187,7 @@ impl HelmholtzSolver {
         };
         self.b.resize(m * D, 0.0);
         self.x.resize(m * D, 0.0);
-        for d in 0..D {
+        for d in comps.clone() {
             for (uix, &p) in a.particle.iter().enumerate() {
                 let p = p as usize;
                 let v = vol[p] * r[p][d] + rhs_const[uix][d];
@@ -151,7 +201,7 @@ impl HelmholtzSolver {
             SolverKind::Cholesky | SolverKind::Auto => {
                 // one solve per component: faer's multi-column triangular solve measured
                 // slower here (15 ms for two columns against 2 × 3.5 ms at 10⁴ unknowns)
-                for d in 0..D {
+                for d in comps.clone() {
                     let ri = self.direct.solve(
                         a,
                         &[],
@@ -162,7 +212,7 @@ impl HelmholtzSolver {
                     )?;
                     info.reused_symbolic = ri.symbolic;
                     info.reused_numeric = ri.numeric;
-                    if d == 0
+                    if d == comps.start
                         && params.solver == SolverKind::Auto
                         && params.reuse_numeric
                         && !ri.numeric
@@ -187,7 +237,7 @@ impl HelmholtzSolver {
                 }
                 let t = Instant::now();
                 let mut first: Option<CgInfo> = None;
-                for d in 0..D {
+                for d in comps.clone() {
                     let x = &mut self.x[d * m..(d + 1) * m];
                     for (uix, &p) in a.particle.iter().enumerate() {
                         x[uix] = if params.warm_start {
@@ -221,7 +271,7 @@ impl HelmholtzSolver {
                 }
             }
         }
-        for d in 0..D {
+        for d in comps.clone() {
             for (uix, &p) in a.particle.iter().enumerate() {
                 let v = self.x[d * m + uix];
                 if !v.is_finite() {

@@ -958,7 +958,7 @@ impl<const D: usize> ProjectionStep<D> {
             r.clone_from(u_star);
             let rule = |j: usize| match particles.role[j] {
                 crate::particles::Role::Ghost { walls, .. } => boundary.velocity_affine(walls),
-                _ => (1.0, [0.0; D]),
+                _ => ([1.0; D], [0.0; D]),
             };
             let info = self.viscous.solve(
                 nl,

@@ -1099,6 +1099,9 @@ pub struct WallSpec {
     pub inward: f64,
     /// Wall velocity.
     pub velocity: Vec<f64>,
+    /// Free-slip (absent in files written before free-slip walls existed: no-slip).
+    #[serde(default)]
+    pub slip: bool,
 }
 
 /// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`]; a
@@ -1151,12 +1154,14 @@ impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
                         position,
                         inward,
                         velocity,
+                        slip,
                     } = *w;
                     WallSpec {
                         axis,
                         position,
                         inward,
                         velocity: velocity.to_vec(),
+                        slip,
                     }
                 })
                 .collect(),
@@ -1209,6 +1214,7 @@ impl BoundarySpec {
                         position: w.position,
                         inward: w.inward,
                         velocity: to_array("wall velocity", &w.velocity)?,
+                        slip: w.slip,
                     });
                 }
                 if out.len() > 8 {

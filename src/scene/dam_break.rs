@@ -12,7 +12,7 @@
 //! ([`crate::reference::martin_moyce`]) by the mean relative deviation over the measured points
 //! with `1 ≤ T ≤ 3` (front) and `τ ≤ 2` (height).
 
-use super::hydrostatic::{check_gravity, free_surface_flow};
+use super::hydrostatic::{check_gravity, free_surface_flow, WallKind};
 use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
@@ -33,12 +33,15 @@ pub struct DamBreak {
     pub gravity: f64,
     /// Free-surface detection.
     pub free_surface: FreeSurface,
+    /// The walls: `no_slip` (default) or `free_slip`.
+    pub walls: WallKind,
 }
 
 super::config_fields!(DamBreak {
     length,
     gravity,
-    free_surface
+    free_surface,
+    walls
 });
 
 impl Default for DamBreak {
@@ -47,6 +50,7 @@ impl Default for DamBreak {
             length: 5.0,
             gravity: 1.0,
             free_surface: FreeSurface::default(),
+            walls: WallKind::NoSlip,
         }
     }
 }
@@ -101,7 +105,10 @@ pub fn build(cfg: &DamBreakConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     for x in lattice([0.0, 0.0], [1.0, 2.0], dx) {
         p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
     }
-    let walls = Walls::tank([0.0, 0.0], [cfg.scene.length, 2.0]);
+    let walls = cfg
+        .scene
+        .walls
+        .apply(Walls::tank([0.0, 0.0], [cfg.scene.length, 2.0]));
     let g = cfg.scene.gravity;
     // the front's speed approaches 2√(g h) ≈ 2√(2 g a)
     let u_ref = 2.0 * (2.0 * g).sqrt();

@@ -33,13 +33,37 @@ pub struct Hydrostatic {
     pub gravity: f64,
     /// Free-surface detection.
     pub free_surface: FreeSurface,
+    /// The walls: `no_slip` (default) or `free_slip`.
+    pub walls: WallKind,
 }
 
 super::config_fields!(Hydrostatic {
     width,
     gravity,
-    free_surface
+    free_surface,
+    walls
 });
+
+/// The walls of a free-surface scene (config key `walls`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WallKind {
+    /// No-slip: the image of a particle moves with `2U − u` ([`crate::boundary::Wall::slip`] false).
+    #[default]
+    NoSlip,
+    /// Free-slip: no penetration, no friction ([`Walls::free_slip`]).
+    FreeSlip,
+}
+
+impl WallKind {
+    /// `walls` with this condition on every wall.
+    pub fn apply<const D: usize>(self, walls: Walls<D>) -> Walls<D> {
+        match self {
+            WallKind::NoSlip => walls,
+            WallKind::FreeSlip => walls.free_slip(),
+        }
+    }
+}
 
 impl Default for Hydrostatic {
     fn default() -> Self {
@@ -47,6 +71,7 @@ impl Default for Hydrostatic {
             width: 1.0,
             gravity: 1.0,
             free_surface: FreeSurface::default(),
+            walls: WallKind::NoSlip,
         }
     }
 }
@@ -140,7 +165,10 @@ pub fn build(cfg: &HydrostaticConfig) -> Result<Simulation<2, Walls<2>>, Error> 
     for x in lattice([0.0, 0.0], [width, depth], dx) {
         p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
     }
-    let walls = Walls::tank([0.0, 0.0], [width, depth]);
+    let walls = cfg
+        .scene
+        .walls
+        .apply(Walls::tank([0.0, 0.0], [width, depth]));
     let g = cfg.scene.gravity;
     let u_ref = (g * depth).sqrt();
     let mut flow = cfg.flow.clone();
