@@ -599,11 +599,65 @@ impl CentrelineSamples {
     }
 }
 
-/// The cavity's observables during a run: the monitor ranges (in the partial result) and the
-/// profile samples.
+/// The observables of a lid-driven box during a run (the square cavity's and the cube's): the
+/// monitor ranges (in the partial result) and the profile samples.
 pub struct CavityState {
     profiles: CentrelineSamples,
     res: CavityResult,
+}
+
+impl CavityState {
+    /// Before the first step of a run of `flow`, sampled at 101 even positions and `table`'s.
+    pub fn new(
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        table: Option<&CentrelineTable>,
+    ) -> Self {
+        let (ys, xs) = sample_positions(table);
+        CavityState {
+            profiles: CentrelineSamples::new(ys, xs, steady),
+            res: CavityResult {
+                re: flow.re,
+                n: flow.n,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// After every step: widens the monitor ranges, samples the profiles when due;
+    /// [`ControlFlow::Break`] once steady and averaged ([`CentrelineSamples::observe`]).
+    pub fn observe<const D: usize, B: crate::boundary::Boundary<D>>(
+        &mut self,
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        rep: &FlowReport,
+        sim: &Simulation<D, B>,
+    ) -> ControlFlow<()> {
+        self.res.monitor.observe(rep);
+        let motion = flow.motion;
+        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
+        self.profiles.observe(steady, motion, sim.time, sample)
+    }
+
+    /// The result at the end of the run (averaged profiles, counts, wall time since
+    /// `started`); the errors (`ghia`, `reference`) are the scene's to fill.
+    pub fn finish<const D: usize, B: crate::boundary::Boundary<D>>(
+        self,
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        sim: &Simulation<D, B>,
+        started: Instant,
+    ) -> CavityResult {
+        let CavityState { profiles, mut res } = self;
+        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
+        profiles.finish(steady, flow.motion, sim.time, sample, &mut res);
+        res.particles = sim.particles.n_fluid();
+        res.ghosts = sim.particles.len() - res.particles;
+        res.steps = sim.steps;
+        res.t_end = sim.time;
+        res.wall_seconds = started.elapsed().as_secs_f64();
+        res
+    }
 }
 
 impl Scene<2> for Cavity {
@@ -617,15 +671,8 @@ impl Scene<2> for Cavity {
     }
 
     fn start(cfg: &CavityConfig, _sim: &Simulation<2, Walls<2>>) -> CavityState {
-        let (ys, xs) = sample_positions(ghia(cfg.re.round() as u32).as_ref());
-        CavityState {
-            profiles: CentrelineSamples::new(ys, xs, &cfg.scene.steady),
-            res: CavityResult {
-                re: cfg.re,
-                n: cfg.n,
-                ..Default::default()
-            },
-        }
+        let table = ghia(cfg.re.round() as u32);
+        CavityState::new(cfg, &cfg.scene.steady, table.as_ref())
     }
 
     fn observe(
@@ -634,10 +681,7 @@ impl Scene<2> for Cavity {
         rep: &FlowReport,
         sim: &Simulation<2, Walls<2>>,
     ) -> ControlFlow<()> {
-        s.res.monitor.observe(rep);
-        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
-        s.profiles
-            .observe(&cfg.scene.steady, cfg.motion, sim.time, sample)
+        s.observe(cfg, &cfg.scene.steady, rep, sim)
     }
 
     fn finish(
@@ -646,17 +690,10 @@ impl Scene<2> for Cavity {
         sim: &Simulation<2, Walls<2>>,
         started: Instant,
     ) -> CavityResult {
-        let CavityState { profiles, mut res } = s;
-        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
-        profiles.finish(&cfg.scene.steady, cfg.motion, sim.time, sample, &mut res);
+        let mut res = s.finish(cfg, &cfg.scene.steady, sim, started);
         let re = cfg.re.round() as u32;
         res.ghia = ghia_errors(re, &res.ys, &res.u, &res.xs, &res.v);
         res.reference = reference_errors(re, &res.ys, &res.u, &res.xs, &res.v);
-        res.particles = sim.particles.n_fluid();
-        res.ghosts = sim.particles.len() - res.particles;
-        res.steps = sim.steps;
-        res.t_end = sim.time;
-        res.wall_seconds = started.elapsed().as_secs_f64();
         res
     }
 
@@ -680,9 +717,14 @@ impl Scene<2> for Cavity {
     }
 }
 
-/// The flat summary written to `summary.json`.
+/// The flat summary written to `summary.json` by a lid-driven box: the square cavity
+/// ([`CavitySummary`]) and the cube (`S` = [`super::cube::Cube`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CavitySummary {
+#[serde(bound(
+    serialize = "SceneConfig<S>: Serialize",
+    deserialize = "SceneConfig<S>: Deserialize<'de>"
+))]
+pub struct BoxSummary<S> {
     /// Reynolds number.
     pub re: f64,
     /// Fluid particles per side.
@@ -697,7 +739,8 @@ pub struct CavitySummary {
     pub t_end: f64,
     /// Wall-clock seconds of the run.
     pub wall_seconds: f64,
-    /// RMS of `u − u_Ghia` (lid-speed units, interior points); `null` without a table.
+    /// RMS of `u − u_Ghia` (lid-speed units, interior points); `null` without a table (and for
+    /// the cube).
     pub rms_u: Option<f64>,
     /// Max of `|u − u_Ghia|`.
     pub max_u: Option<f64>,
@@ -705,7 +748,8 @@ pub struct CavitySummary {
     pub rms_v: Option<f64>,
     /// Max of `|v − v_Ghia|`.
     pub max_v: Option<f64>,
-    /// RMS of `u − u_ref` against the extrapolated reference (`null` without one for this Re).
+    /// RMS of `u − u_ref` against the accurate reference (`null` without one for this Re): the
+    /// extrapolated one for the square, Albensoeder & Kuhlmann's for the cube.
     pub rms_u_ref: Option<f64>,
     /// Max of `|u − u_ref|`.
     pub max_u_ref: Option<f64>,
@@ -713,6 +757,10 @@ pub struct CavitySummary {
     pub rms_v_ref: Option<f64>,
     /// Max of `|v − v_ref|`.
     pub max_v_ref: Option<f64>,
+    /// The cube's largest departure from the mirror symmetry about z = 0.5
+    /// ([`super::cube::symmetry_error`]; absent for the square).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub symmetry: Option<f64>,
     /// Steadiness reached.
     pub steady: bool,
     /// Time it was first reached.
@@ -726,13 +774,16 @@ pub struct CavitySummary {
     #[serde(flatten)]
     pub monitor: MonitorRanges,
     /// The configuration of the run.
-    pub config: CavityConfig,
+    pub config: SceneConfig<S>,
 }
 
-impl CavitySummary {
-    /// Flattens a result and its configuration.
-    pub fn new(res: &CavityResult, cfg: &CavityConfig) -> Self {
-        CavitySummary {
+/// The square cavity's `summary.json`.
+pub type CavitySummary = BoxSummary<Cavity>;
+
+impl<S: Clone> BoxSummary<S> {
+    /// Flattens a result and its configuration (no `symmetry`).
+    pub fn new(res: &CavityResult, cfg: &SceneConfig<S>) -> Self {
+        BoxSummary {
             re: res.re,
             n: res.n,
             particles: res.particles,
@@ -748,6 +799,7 @@ impl CavitySummary {
             max_u_ref: res.reference.map(|g| g.max_u),
             rms_v_ref: res.reference.map(|g| g.rms_v),
             max_v_ref: res.reference.map(|g| g.max_v),
+            symmetry: None,
             steady: res.steady,
             steady_time: res.steady_time,
             steady_rate: res.steady_rate,

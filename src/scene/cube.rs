@@ -11,10 +11,10 @@
 //! ([`symmetry_error`]).
 
 use super::cavity::{
-    build_box, profile_errors, profile_tables, sample_positions, sample_profiles,
-    validate_lid_and_steady, CavityResult, CentrelineSamples, SourceGhosts, SteadyCriterion,
+    build_box, profile_errors, profile_tables, validate_lid_and_steady, BoxSummary, CavityResult,
+    CavityState, SourceGhosts, SteadyCriterion,
 };
-use super::{FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams, Table};
+use super::{FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
@@ -120,15 +120,9 @@ pub struct CubeResult {
     pub symmetry: f64,
 }
 
-/// The cube's observables during a run.
-pub struct CubeState {
-    profiles: CentrelineSamples,
-    res: CavityResult,
-}
-
 impl Scene<3> for Cube {
     type Boundary = Walls<3>;
-    type State = CubeState;
+    type State = CavityState;
     type Result = CubeResult;
     type Summary = CubeSummary;
 
@@ -136,47 +130,30 @@ impl Scene<3> for Cube {
         build(cfg)
     }
 
-    fn start(cfg: &CubeConfig, _sim: &Simulation<3, Walls<3>>) -> CubeState {
-        let (ys, xs) = sample_positions(albensoeder_cube(cfg.re.round() as u32).as_ref());
-        CubeState {
-            profiles: CentrelineSamples::new(ys, xs, &cfg.scene.steady),
-            res: CavityResult {
-                re: cfg.re,
-                n: cfg.n,
-                ..Default::default()
-            },
-        }
+    fn start(cfg: &CubeConfig, _sim: &Simulation<3, Walls<3>>) -> CavityState {
+        let table = albensoeder_cube(cfg.re.round() as u32);
+        CavityState::new(cfg, &cfg.scene.steady, table.as_ref())
     }
 
     fn observe(
-        s: &mut CubeState,
+        s: &mut CavityState,
         cfg: &CubeConfig,
         rep: &FlowReport,
         sim: &Simulation<3, Walls<3>>,
     ) -> ControlFlow<()> {
-        s.res.monitor.observe(rep);
-        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
-        s.profiles
-            .observe(&cfg.scene.steady, cfg.motion, sim.time, sample)
+        s.observe(cfg, &cfg.scene.steady, rep, sim)
     }
 
     fn finish(
-        s: CubeState,
+        s: CavityState,
         cfg: &CubeConfig,
         sim: &Simulation<3, Walls<3>>,
         started: Instant,
     ) -> CubeResult {
-        let CubeState { profiles, mut res } = s;
-        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
-        profiles.finish(&cfg.scene.steady, cfg.motion, sim.time, sample, &mut res);
+        let symmetry = symmetry_error(sim, cfg.scene.lid);
+        let mut res = s.finish(cfg, &cfg.scene.steady, sim, started);
         res.reference = albensoeder_cube(cfg.re.round() as u32)
             .map(|t| profile_errors(&t, &res.ys, &res.u, &res.xs, &res.v));
-        res.particles = sim.particles.n_fluid();
-        res.ghosts = sim.particles.len() - res.particles;
-        res.steps = sim.steps;
-        res.t_end = sim.time;
-        let symmetry = symmetry_error(sim, cfg.scene.lid);
-        res.wall_seconds = started.elapsed().as_secs_f64();
         CubeResult {
             profiles: res,
             symmetry,
@@ -184,7 +161,10 @@ impl Scene<3> for Cube {
     }
 
     fn summary(cfg: &CubeConfig, res: &CubeResult) -> CubeSummary {
-        CubeSummary::new(res, cfg)
+        BoxSummary {
+            symmetry: Some(res.symmetry),
+            ..BoxSummary::new(&res.profiles, cfg)
+        }
     }
 
     /// `profile_u.csv` (`y,u` along x = z = 0.5) and `profile_v.csv` (`x,v` along
@@ -204,78 +184,10 @@ impl Scene<3> for Cube {
     }
 }
 
-/// The flat summary written to `summary.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CubeSummary {
-    /// Reynolds number.
-    pub re: f64,
-    /// Fluid particles per side.
-    pub n: usize,
-    /// Fluid particles (`n³`).
-    pub particles: usize,
-    /// Ghost particles at the end.
-    pub ghosts: usize,
-    /// Steps.
-    pub steps: u64,
-    /// Time reached.
-    pub t_end: f64,
-    /// Wall-clock seconds of the run.
-    pub wall_seconds: f64,
-    /// The reference the errors are measured against (`null`: none for this Re).
-    pub reference: Option<String>,
-    /// RMS of `u − u_ref` along x = z = 0.5 (lid-speed units, interior points).
-    pub rms_u: Option<f64>,
-    /// Max of `|u − u_ref|`.
-    pub max_u: Option<f64>,
-    /// RMS of `v − v_ref` along y = z = 0.5.
-    pub rms_v: Option<f64>,
-    /// Max of `|v − v_ref|`.
-    pub max_v: Option<f64>,
-    /// Largest departure from the mirror symmetry about z = 0.5 ([`symmetry_error`]).
-    pub symmetry: f64,
-    /// Steadiness reached.
-    pub steady: bool,
-    /// Time it was first reached.
-    pub steady_time: Option<f64>,
-    /// Last `max|Δprofile|/Δt`.
-    pub steady_rate: f64,
-    /// How steadiness was judged.
-    pub steadiness: String,
-    /// Ranges of the per-step monitor.
-    #[serde(flatten)]
-    pub monitor: MonitorRanges,
-    /// The configuration of the run.
-    pub config: CubeConfig,
-}
-
-impl CubeSummary {
-    /// Flattens a result and its configuration.
-    pub fn new(res: &CubeResult, cfg: &CubeConfig) -> Self {
-        let r = &res.profiles;
-        let e = r.reference;
-        CubeSummary {
-            re: r.re,
-            n: r.n,
-            particles: r.particles,
-            ghosts: r.ghosts,
-            steps: r.steps,
-            t_end: r.t_end,
-            wall_seconds: r.wall_seconds,
-            reference: e.map(|_| "Albensoeder & Kuhlmann (2005), Tables 5 and 6".into()),
-            rms_u: e.map(|g| g.rms_u),
-            max_u: e.map(|g| g.max_u),
-            rms_v: e.map(|g| g.rms_v),
-            max_v: e.map(|g| g.max_v),
-            symmetry: res.symmetry,
-            steady: r.steady,
-            steady_time: r.steady_time,
-            steady_rate: r.steady_rate,
-            steadiness: r.steady_rule.clone(),
-            monitor: r.monitor.clone(),
-            config: cfg.clone(),
-        }
-    }
-}
+/// The cube's `summary.json`: the cavity's layout ([`BoxSummary`]), the errors against
+/// Albensoeder & Kuhlmann in `rms_u_ref`, `max_u_ref`, `rms_v_ref`, `max_v_ref` (`null` without a
+/// reference for this Re; Ghia's `rms_u` … are `null`), and `symmetry`.
+pub type CubeSummary = BoxSummary<Cube>;
 
 /// Writes `profiles.png` (both centre-line profiles against Albensoeder & Kuhlmann at Re 1000,
 /// with Ghia et al.'s square at the same Re for comparison) and `particles.png` (the fluid
