@@ -29,7 +29,8 @@ use std::sync::Arc;
 #[derive(Parser, Debug)]
 #[command(about = "Lid-driven cavity with the GPM projection, compared with Ghia et al. (1982)")]
 struct Args {
-    /// Reynolds number U L / ν (Ghia tables are embedded for 100 and 1000).
+    /// Reynolds number U L / ν (Ghia tables are embedded for 100, 400, 1000, 3200, 5000, 7500
+    /// and 10000).
     #[arg(long, default_value_t = 100.0)]
     re: f64,
     /// Fluid particles per side.
@@ -246,7 +247,11 @@ fn run(a: Args) -> Result<ExitCode> {
             g.rms_u, g.max_u, g.rms_v, g.max_v
         );
     } else {
-        println!("no Ghia table for Re = {} (tables: 100, 1000)", res.re);
+        println!(
+            "no Ghia table for Re = {} (tables: {:?})",
+            res.re,
+            gpm::reference::GHIA_RE
+        );
     }
     if let Some(g) = res.reference {
         println!(

@@ -1321,7 +1321,7 @@ mod flows {
         let mut sim = with_variant(build(cfg)?, v);
         let mut extra = 0.0;
         let re_key = cfg.re.round() as u32;
-        let (ys, xs) = sample_positions(re_key);
+        let (ys, xs) = sample_positions(gpm::reference::ghia(re_key).as_ref());
         let s = cfg.scene.steady;
         let mut samples: Vec<(f64, Vec<f64>, Vec<f64>)> = Vec::new();
         let mut next = s.interval;

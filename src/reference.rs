@@ -3,13 +3,20 @@
 //! Ghia, Ghia & Shin (1982), *High-Re solutions for incompressible flow using the Navier–Stokes
 //! equations and a multigrid method*, J. Comput. Phys. 48(3):387–411: Table I (u along the
 //! vertical centre line x = 0.5) and Table II (v along the horizontal centre line y = 0.5) for
-//! Re = 100 and 1000. See `data/SOURCES.md` for the transcription and its cross-checks.
+//! all seven Reynolds numbers of the paper, Re = 100, 400, 1000, 3200, 5000, 7500 and 10 000
+//! ([`GHIA_RE`]). See `data/SOURCES.md` for the transcription, its cross-checks and the
+//! paper's misprints: Re 10 000's `u(0.5)` carries the corrected sign, and the two printed
+//! values that cannot be restored (Re 400 `v(0.9063)`, Re 3200 `u(0.4531)`) are left out of
+//! their tables ([`GHIA_OMITTED`]), which then have 16 rows instead of 17.
 //!
 //! An extrapolated reference at the same points ([`extrapolated`]): the steady cavity by
 //! second-order finite differences of the stream-function/vorticity equations on 128²…1024²
 //! grids, Richardson-extrapolated, accurate to about 10⁻⁶ (validated against Botella & Peyret
 //! 1998 at Re 1000). Ghia's interior values are 0.25–1 % RMS off it, so an error against Ghia
 //! below about 0.5 % cannot rank a method: report both.
+//!
+//! The lid-driven cube at Re 1000 ([`albensoeder_cube`]): Albensoeder & Kuhlmann (2005)'s
+//! centre-line tables, spectrally accurate.
 
 /// A pair of cavity centre-line tables (Ghia et al.'s, or the extrapolated reference at the same
 /// points).
@@ -23,10 +30,44 @@ pub struct CentrelineTable {
     pub v_horizontal: Vec<(f64, f64)>,
 }
 
-const RE100_U: &str = include_str!("../data/ghia1982_re100_u_vertical.csv");
-const RE100_V: &str = include_str!("../data/ghia1982_re100_v_horizontal.csv");
-const RE1000_U: &str = include_str!("../data/ghia1982_re1000_u_vertical.csv");
-const RE1000_V: &str = include_str!("../data/ghia1982_re1000_v_horizontal.csv");
+/// Ghia et al.'s tables: `(Re, Table I column, Table II column)`.
+const GHIA_TABLES: [(u32, &str, &str); 7] = [
+    (
+        100,
+        include_str!("../data/ghia1982_re100_u_vertical.csv"),
+        include_str!("../data/ghia1982_re100_v_horizontal.csv"),
+    ),
+    (
+        400,
+        include_str!("../data/ghia1982_re400_u_vertical.csv"),
+        include_str!("../data/ghia1982_re400_v_horizontal.csv"),
+    ),
+    (
+        1000,
+        include_str!("../data/ghia1982_re1000_u_vertical.csv"),
+        include_str!("../data/ghia1982_re1000_v_horizontal.csv"),
+    ),
+    (
+        3200,
+        include_str!("../data/ghia1982_re3200_u_vertical.csv"),
+        include_str!("../data/ghia1982_re3200_v_horizontal.csv"),
+    ),
+    (
+        5000,
+        include_str!("../data/ghia1982_re5000_u_vertical.csv"),
+        include_str!("../data/ghia1982_re5000_v_horizontal.csv"),
+    ),
+    (
+        7500,
+        include_str!("../data/ghia1982_re7500_u_vertical.csv"),
+        include_str!("../data/ghia1982_re7500_v_horizontal.csv"),
+    ),
+    (
+        10000,
+        include_str!("../data/ghia1982_re10000_u_vertical.csv"),
+        include_str!("../data/ghia1982_re10000_v_horizontal.csv"),
+    ),
+];
 const EX100_U: &str = include_str!("../data/extrapolated_re100_u_vertical.csv");
 const EX100_V: &str = include_str!("../data/extrapolated_re100_v_horizontal.csv");
 const EX1000_U: &str = include_str!("../data/extrapolated_re1000_u_vertical.csv");
@@ -58,13 +99,9 @@ pub fn parse_two_columns(text: &str) -> Result<Vec<(f64, f64)>, String> {
     Ok(rows)
 }
 
-/// Ghia et al.'s tables for `re` = 100 or 1000.
+/// Ghia et al.'s tables for `re` (one of [`GHIA_RE`]).
 pub fn ghia(re: u32) -> Option<CentrelineTable> {
-    let (u, v) = match re {
-        100 => (RE100_U, RE100_V),
-        1000 => (RE1000_U, RE1000_V),
-        _ => return None,
-    };
+    let &(_, u, v) = GHIA_TABLES.iter().find(|t| t.0 == re)?;
     Some(table(re, u, v))
 }
 
@@ -87,8 +124,26 @@ fn table(re: u32, u: &str, v: &str) -> CentrelineTable {
     }
 }
 
-/// Reynolds numbers with embedded tables.
-pub const GHIA_RE: [u32; 2] = [100, 1000];
+const AK1000_U: &str = include_str!("../data/albensoeder2005_cube_re1000_u_vertical.csv");
+const AK1000_V: &str = include_str!("../data/albensoeder2005_cube_re1000_v_horizontal.csv");
+
+/// The lid-driven **cube** (3D, rigid end walls) at `re` = 1000: Albensoeder & Kuhlmann (2005),
+/// *Accurate three-dimensional lid-driven cavity flow*, J. Comput. Phys. 206, 536–558, Tables 5
+/// and 6 (Chebyshev collocation), mapped to gpm's frame (unit cube, lid `y = 1` moving in `+x`,
+/// `z` spanwise): `u_vertical` is `u(0.5, y, 0.5)`, `v_horizontal` is `v(x, 0.5, 0.5)`, at
+/// Ghia et al.'s positions. See `data/SOURCES.md`.
+pub fn albensoeder_cube(re: u32) -> Option<CentrelineTable> {
+    (re == 1000).then(|| table(re, AK1000_U, AK1000_V))
+}
+
+/// Reynolds numbers with embedded tables of Ghia et al.
+pub const GHIA_RE: [u32; 7] = [100, 400, 1000, 3200, 5000, 7500, 10000];
+
+/// Rows of Ghia et al.'s tables left out because the printed value is a misprint whose digits
+/// cannot be restored with confidence (`data/SOURCES.md`): `(Re, 'u' or 'v', position,
+/// printed value)`.
+pub const GHIA_OMITTED: [(u32, char, f64, f64); 2] =
+    [(400, 'v', 0.9063, -0.23827), (3200, 'u', 0.4531, -0.86636)];
 
 /// RMS and maximum of `sim − ref` over the interior points (walls at 0 and 1 excluded).
 pub fn rms_max(reference: &[(f64, f64)], simulated: &[f64]) -> (f64, f64) {

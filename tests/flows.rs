@@ -460,6 +460,7 @@ fn scene_configuration_keys_are_the_serialised_keys() {
     check::<gpm::scene::channel::Channel>();
     check::<gpm::scene::hydrostatic::Hydrostatic>();
     check::<gpm::scene::dam_break::DamBreak>();
+    check::<gpm::scene::cube::Cube>();
     assert_eq!(
         gpm::scene::SCENES,
         [
@@ -467,7 +468,8 @@ fn scene_configuration_keys_are_the_serialised_keys() {
             "taylor_green",
             "channel",
             "hydrostatic",
-            "dam_break"
+            "dam_break",
+            "cube"
         ]
     );
 }
@@ -530,6 +532,7 @@ fn scenes_are_found_by_name() {
         gpm::scene::visit_scene("dam-break", Name).unwrap(),
         ("dam_break", 2)
     );
+    assert_eq!(gpm::scene::visit_scene("cube", Name).unwrap(), ("cube", 3));
     match gpm::scene::visit_scene("sloshing", Name) {
         Err(gpm::error::InputError::Config { key, reason }) => {
             assert_eq!(key, "scene");
@@ -570,4 +573,62 @@ fn an_observer_stops_a_run_with_a_value() {
         "{}",
         run.result.t_end
     );
+}
+
+/// A tiny lid-driven cube (n = 8, Re 100, t = 1.5, seconds): every particle stays in the
+/// cube, the flow is mirror-symmetric about z = 0.5 (u, v even, w odd), the centre-line u is
+/// positive below the lid and negative in the return flow, v changes sign across the centre
+/// (down near x = 1, up near x = 0), and the profiles are written.
+#[test]
+fn tiny_cube_is_symmetric_and_driven_by_its_lid() {
+    use gpm::scene::cube::CubeConfig;
+    let cfg = CubeConfig::default().with(|c| {
+        c.n = 8;
+        c.t_end = 1.5;
+    });
+    let run = run_scene(&cfg, |_| {}, |_, _| Ok(ControlFlow::Continue(()))).unwrap();
+    let res = &run.result;
+    let p = &run.sim.particles;
+    assert_eq!(p.n_fluid(), 512);
+    for i in (0..p.len()).filter(|&i| p.role[i].is_fluid()) {
+        assert!(
+            p.x[i].iter().all(|&c| c > 0.0 && c < 1.0),
+            "particle {i} at {:?}",
+            p.x[i]
+        );
+        assert!(p.u[i].iter().all(|c| c.is_finite()));
+    }
+    assert!(
+        res.symmetry < 1e-8,
+        "symmetry about z = 0.5: {}",
+        res.symmetry
+    );
+    let r = &res.profiles;
+    assert!(
+        r.steps > 10 && (r.t_end - 1.5).abs() < 0.1,
+        "{} {}",
+        r.steps,
+        r.t_end
+    );
+    let at = |pos: &[f64], val: &[f64], q: f64| cavity::interp(pos, val, q);
+    assert!(at(&r.ys, &r.u, 0.9) > 0.1, "u below the lid");
+    let return_flow = (1..10)
+        .map(|k| at(&r.ys, &r.u, 0.05 * k as f64 + 0.05))
+        .fold(f64::INFINITY, f64::min);
+    assert!(return_flow < -0.02, "return flow {return_flow}");
+    assert!(at(&r.xs, &r.v, 0.85) < 0.0 && at(&r.xs, &r.v, 0.15) > 0.0);
+    // no reference at Re 100; the profiles and the summary are written
+    assert!(r.reference.is_none() && r.ghia.is_none());
+    let dir = std::env::temp_dir().join(format!("gpm_tiny_cube_{}", std::process::id()));
+    let written = run.write_tables(&dir, &cfg).unwrap();
+    for name in ["profile_u.csv", "profile_v.csv", "summary.json"] {
+        assert!(written.iter().any(|f| f.ends_with(name)), "{name}");
+    }
+    let u = read_csv(&dir.join("profile_u.csv"));
+    assert_eq!(u.len(), r.ys.len());
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["particles"], 512);
+    assert!(summary["symmetry"].as_f64().unwrap() < 1e-8);
+    std::fs::remove_dir_all(&dir).ok();
 }

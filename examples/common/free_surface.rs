@@ -1,4 +1,4 @@
-//! What the free-surface examples share: run a scene recorded into `--out`, then write its
+//! What the free-surface examples (and the cube's) share: run a scene recorded into `--out`, then write its
 //! tables, `summary.json` and plots there.
 
 use anyhow::{Context, Result};
@@ -72,7 +72,11 @@ pub fn load<S: gpm::scene::SceneParams>(path: Option<&Path>) -> Result<SceneConf
 
 /// Runs `cfg` recording every step (`full`: with particle snapshots) into `out/run.mcap` and
 /// writes the scene's files into `out`; prints the summary.
-pub fn run_into<S: Scene<2>>(cfg: &SceneConfig<S>, out: &Path, full: bool) -> Result<()> {
+pub fn run_into<const D: usize, S: Scene<D>>(
+    cfg: &SceneConfig<S>,
+    out: &Path,
+    full: bool,
+) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let level = if full {
         RecordLevel::Full

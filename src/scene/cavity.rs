@@ -171,48 +171,70 @@ impl SceneParams for Cavity {
     }
 
     fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        let bad = |name: &'static str, value: f64, reason: &str| {
-            Err(InputError::Parameter {
-                name: name.into(),
-                value,
-                reason: reason.into(),
-            })
-        };
-        if !(self.lid.is_finite() && self.lid != 0.0) {
-            return bad("lid", self.lid, "the lid speed must be finite and non-zero");
-        }
-        let s = &self.steady;
-        if !(s.interval > 0.0 && s.interval.is_finite()) {
-            return bad("steady.interval", s.interval, "must be positive and finite");
-        }
-        if s.tol.is_nan() || s.tol <= 0.0 {
-            return bad("steady.tol", s.tol, "must be positive");
-        }
-        if !(s.average_window >= 0.0 && s.average_window.is_finite()) {
-            return bad(
-                "steady.average_window",
-                s.average_window,
-                "must be non-negative and finite",
-            );
-        }
-        Ok(())
+        validate_lid_and_steady(self.lid, &self.steady)
     }
+}
+
+/// The keys the cavity and the cube share: a finite non-zero lid speed and a sensible
+/// steadiness criterion.
+pub fn validate_lid_and_steady(lid: f64, s: &SteadyCriterion) -> Result<(), InputError> {
+    let bad = |name: &'static str, value: f64, reason: &str| {
+        Err(InputError::Parameter {
+            name: name.into(),
+            value,
+            reason: reason.into(),
+        })
+    };
+    if !(lid.is_finite() && lid != 0.0) {
+        return bad("lid", lid, "the lid speed must be finite and non-zero");
+    }
+    if !(s.interval > 0.0 && s.interval.is_finite()) {
+        return bad("steady.interval", s.interval, "must be positive and finite");
+    }
+    if s.tol.is_nan() || s.tol <= 0.0 {
+        return bad("steady.tol", s.tol, "must be positive");
+    }
+    if !(s.average_window >= 0.0 && s.average_window.is_finite()) {
+        return bad(
+            "steady.average_window",
+            s.average_window,
+            "must be non-negative and finite",
+        );
+    }
+    Ok(())
 }
 
 /// Builds the simulation: an `n × n` cell-centred lattice at rest, ghosts, neighbours, volumes.
 pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     cfg.validate()?;
-    let dx = cfg.dx();
-    let mut p = Particles::<2>::new();
-    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
-        p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
+    build_box(cfg, cfg.scene.lid, cfg.scene.source_ghosts)
+}
+
+/// The lid-driven box `[0, 1]^D` at rest on an `n^D` cell-centred lattice (volumes `Δx^D`):
+/// no-slip walls by mirror ghosts, the wall `y = 1` (axis 1) moving with speed `lid` along `x`
+/// — the square cavity for `D = 2` (the same walls as [`Walls::cavity`]), the cube for `D = 3`
+/// (`z` spanwise). Ghosts, neighbours and volumes are set up; `flow` is not validated here.
+pub fn build_box<const D: usize>(
+    flow: &FlowConfig,
+    lid: f64,
+    source_ghosts: SourceGhosts,
+) -> Result<Simulation<D, Walls<D>>, Error> {
+    let dx = flow.dx();
+    let mut p = Particles::<D>::new();
+    for x in lattice([0.0; D], [1.0; D], dx) {
+        p.push(x, [0.0; D], 0.0, dx.powi(D as i32), Role::Fluid);
     }
-    let walls = Walls::cavity(1.0, cfg.scene.lid);
-    let mut params = cfg.flow_params(cfg.scene.lid);
-    if let Some(rule) = cfg.scene.source_ghosts.rule() {
+    let mut walls = Walls::closed_box([0.0; D], [1.0; D]);
+    for wall in &mut walls.walls {
+        if wall.axis == 1 && wall.inward < 0.0 {
+            wall.velocity[0] = lid;
+        }
+    }
+    let mut params = flow.flow_params(lid);
+    if let Some(rule) = source_ghosts.rule() {
         params.projection.source_ghosts = rule;
     }
-    Simulation::new(p, walls, cfg.neighbor_config(), params)
+    Simulation::new(p, walls, flow.neighbor_config(), params)
 }
 
 /// The profiles' rate of change between the means of the last two windows of `m` samples
@@ -244,11 +266,12 @@ fn profile_rate(samples: &[(f64, Vec<f64>, Vec<f64>)], m: usize) -> Option<f64> 
     Some(du / (new.0 - old.0))
 }
 
-/// Sample positions along the centre lines: 101 evenly spaced points plus Ghia's.
-pub fn sample_positions(re: u32) -> (Vec<f64>, Vec<f64>) {
+/// Sample positions along the centre lines: 101 evenly spaced points plus the table's (Ghia's
+/// for the cavity).
+pub fn sample_positions(table: Option<&CentrelineTable>) -> (Vec<f64>, Vec<f64>) {
     let mut ys: Vec<f64> = (0..=100).map(|k| k as f64 / 100.0).collect();
     let mut xs = ys.clone();
-    if let Some(t) = ghia(re) {
+    if let Some(t) = table {
         ys.extend(t.u_vertical.iter().map(|p| p.0));
         xs.extend(t.v_horizontal.iter().map(|p| p.0));
     }
@@ -259,15 +282,22 @@ pub fn sample_positions(re: u32) -> (Vec<f64>, Vec<f64>) {
     (ys, xs)
 }
 
-/// `u(0.5, y)` at `ys` and `v(x, 0.5)` at `xs` from the current particles (ghosts included).
-pub fn sample_profiles(
-    sim: &Simulation<2, Walls<2>>,
+/// `u` along the line through the centre of the box `[0, 1]^D` parallel to `y` (at `ys`) and
+/// `v` along the one parallel to `x` (at `xs`) from the current particles (ghosts included):
+/// `u(0.5, y)`, `v(x, 0.5)` in the square, `u(0.5, y, 0.5)`, `v(x, 0.5, 0.5)` in the cube.
+pub fn sample_profiles<const D: usize, B: crate::boundary::Boundary<D>>(
+    sim: &Simulation<D, B>,
     ys: &[f64],
     xs: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
     let s = Sampler::new(&sim.particles.x, *sim.nl.kernel(), sim.nl.config().periodic);
-    let pu: Vec<[f64; 2]> = ys.iter().map(|&y| [0.5, y]).collect();
-    let pv: Vec<[f64; 2]> = xs.iter().map(|&x| [x, 0.5]).collect();
+    let on_line = |axis: usize, c: f64| -> [f64; D] {
+        let mut p = [0.5; D];
+        p[axis] = c;
+        p
+    };
+    let pu: Vec<[f64; D]> = ys.iter().map(|&y| on_line(1, y)).collect();
+    let pv: Vec<[f64; D]> = xs.iter().map(|&x| on_line(0, x)).collect();
     let u = s
         .sample(&sim.particles.u, &pu)
         .iter()
@@ -332,11 +362,35 @@ pub struct CavityResult {
     pub v: Vec<f64>,
     /// Errors against Ghia et al. when a table exists for this Re.
     pub ghia: Option<ProfileErrors>,
-    /// Errors against the extrapolated reference ([`crate::reference::extrapolated`]) when it
-    /// exists for this Re.
+    /// Errors against the accurate reference when it exists for this Re: the extrapolated one
+    /// ([`crate::reference::extrapolated`]) for the square, Albensoeder & Kuhlmann's
+    /// ([`crate::reference::albensoeder_cube`]) for the cube ([`super::cube`]).
     pub reference: Option<ProfileErrors>,
     /// Ranges of the per-step monitor (c0, connectivity, spacing, Theorem 4.5 ratio, …).
     pub monitor: MonitorRanges,
+}
+
+/// `profile_u.csv` (`y,u`) and `profile_v.csv` (`x,v`) of a result's averaged profiles.
+pub fn profile_tables(res: &CavityResult) -> Vec<Table> {
+    use std::fmt::Write;
+    let mut u = String::from("y,u\n");
+    for (y, val) in res.ys.iter().zip(&res.u) {
+        let _ = writeln!(u, "{y:.6},{val:.8}");
+    }
+    let mut v = String::from("x,v\n");
+    for (x, val) in res.xs.iter().zip(&res.v) {
+        let _ = writeln!(v, "{x:.6},{val:.8}");
+    }
+    vec![
+        Table {
+            name: "profile_u.csv".into(),
+            text: u,
+        },
+        Table {
+            name: "profile_v.csv".into(),
+            text: v,
+        },
+    ]
 }
 
 /// Interpolates a profile given at sorted positions `pos` to `q` (linear).
@@ -406,105 +460,105 @@ pub fn run(
     Ok(run.result)
 }
 
-/// The cavity's observables during a run: the Theorem 4.5 ratio, c0 and divergence ratios
-/// (in the partial result) and the profile samples.
-pub struct CavityState {
+/// Centre-line profiles sampled every `steady.interval` time units, judged for steadiness
+/// ([`SteadyCriterion`]) and averaged at the end: the observable of the cavity and of the cube
+/// ([`super::cube`]), whatever the dimension.
+pub struct CentrelineSamples {
     ys: Vec<f64>,
     xs: Vec<f64>,
     samples: Vec<(f64, Vec<f64>, Vec<f64>)>,
     next_sample: f64,
     steady_time: Option<f64>,
     rate: f64,
-    res: CavityResult,
 }
 
-impl Scene<2> for Cavity {
-    type Boundary = Walls<2>;
-    type State = CavityState;
-    type Result = CavityResult;
-    type Summary = CavitySummary;
-
-    fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
-        build(cfg)
-    }
-
-    fn start(cfg: &CavityConfig, _sim: &Simulation<2, Walls<2>>) -> CavityState {
-        let (ys, xs) = sample_positions(cfg.re.round() as u32);
-        CavityState {
+impl CentrelineSamples {
+    /// Before the first step: profiles `u` at positions `ys`, `v` at `xs`.
+    pub fn new(ys: Vec<f64>, xs: Vec<f64>, st: &SteadyCriterion) -> Self {
+        CentrelineSamples {
             ys,
             xs,
             samples: Vec::new(),
-            next_sample: cfg.scene.steady.interval,
+            next_sample: st.interval,
             steady_time: None,
             rate: f64::INFINITY,
-            res: CavityResult {
-                re: cfg.re,
-                n: cfg.n,
-                ..Default::default()
-            },
         }
     }
 
-    fn observe(
-        s: &mut CavityState,
-        cfg: &CavityConfig,
-        rep: &FlowReport,
-        sim: &Simulation<2, Walls<2>>,
+    /// Positions of the `u` profile.
+    pub fn ys(&self) -> &[f64] {
+        &self.ys
+    }
+
+    /// Positions of the `v` profile.
+    pub fn xs(&self) -> &[f64] {
+        &self.xs
+    }
+
+    /// After a step that reached `time`: takes a sample (`sample(ys, xs)` returns `(u, v)` at
+    /// those positions) when one is due, judges steadiness, and returns
+    /// [`ControlFlow::Break`] once the run is steady and averaged (with `stop_when_steady`).
+    pub fn observe(
+        &mut self,
+        st: &SteadyCriterion,
+        motion: crate::flow::Motion,
+        time: f64,
+        sample: impl FnOnce(&[f64], &[f64]) -> (Vec<f64>, Vec<f64>),
     ) -> ControlFlow<()> {
-        let st = cfg.scene.steady;
-        let res = &mut s.res;
-        res.monitor.observe(rep);
-        if sim.time + 1e-12 >= s.next_sample {
-            let (u, v) = sample_profiles(sim, &s.ys, &s.xs);
-            s.samples.push((sim.time, u, v));
-            s.next_sample += st.interval;
-            let compare = st.compare_for(cfg.motion);
-            let m = match compare {
-                SteadyCompare::Samples => 1,
-                SteadyCompare::Means => st.window_samples(),
-            };
-            if let Some(rate) = profile_rate(&s.samples, m) {
-                s.rate = rate;
-                if s.rate < st.tol && s.steady_time.is_none() {
-                    s.steady_time = Some(sim.time);
-                }
+        if time + 1e-12 < self.next_sample {
+            return ControlFlow::Continue(());
+        }
+        let (u, v) = sample(&self.ys, &self.xs);
+        self.samples.push((time, u, v));
+        self.next_sample += st.interval;
+        let compare = st.compare_for(motion);
+        let m = match compare {
+            SteadyCompare::Samples => 1,
+            SteadyCompare::Means => st.window_samples(),
+        };
+        if let Some(rate) = profile_rate(&self.samples, m) {
+            self.rate = rate;
+            if self.rate < st.tol && self.steady_time.is_none() {
+                self.steady_time = Some(time);
             }
-            if let Some(ts) = s.steady_time {
-                let wait = match compare {
-                    SteadyCompare::Samples => st.average_window,
-                    SteadyCompare::Means => 0.0,
-                };
-                if st.stop_when_steady && sim.time + 1e-12 >= ts + wait {
-                    return ControlFlow::Break(());
-                }
+        }
+        if let Some(ts) = self.steady_time {
+            let wait = match compare {
+                SteadyCompare::Samples => st.average_window,
+                SteadyCompare::Means => 0.0,
+            };
+            if st.stop_when_steady && time + 1e-12 >= ts + wait {
+                return ControlFlow::Break(());
             }
         }
         ControlFlow::Continue(())
     }
 
-    fn finish(
-        s: CavityState,
-        cfg: &CavityConfig,
-        sim: &Simulation<2, Walls<2>>,
-        started: Instant,
-    ) -> CavityResult {
-        let st = cfg.scene.steady;
-        let CavityState {
+    /// At the end of a run at `time`: the averaged profiles and the steadiness fields of `res`
+    /// (`sample(ys, xs)` is taken when no sample was). The errors are left to the caller.
+    pub fn finish(
+        self,
+        st: &SteadyCriterion,
+        motion: crate::flow::Motion,
+        time: f64,
+        sample: impl FnOnce(&[f64], &[f64]) -> (Vec<f64>, Vec<f64>),
+        res: &mut CavityResult,
+    ) {
+        let CentrelineSamples {
             ys,
             xs,
             mut samples,
             steady_time,
             rate,
-            mut res,
             ..
-        } = s;
+        } = self;
         if samples.is_empty() {
-            let (u, v) = sample_profiles(sim, &ys, &xs);
-            samples.push((sim.time, u, v));
+            let (u, v) = sample(&ys, &xs);
+            samples.push((time, u, v));
         }
         // average the samples of the last window (in `Means` the window that was judged)
-        let t_last = samples.last().map_or(sim.time, |s| s.0);
-        let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = match st.compare_for(cfg.motion) {
+        let t_last = samples.last().map_or(time, |s| s.0);
+        let window: Vec<&(f64, Vec<f64>, Vec<f64>)> = match st.compare_for(motion) {
             SteadyCompare::Samples => samples
                 .iter()
                 .filter(|s| s.0 >= t_last - st.average_window - 1e-9)
@@ -515,23 +569,17 @@ impl Scene<2> for Cavity {
             }
         };
         let m = window.len() as f64;
-        let u: Vec<f64> = (0..ys.len())
+        res.u = (0..ys.len())
             .map(|k| window.iter().map(|s| s.1[k]).sum::<f64>() / m)
             .collect();
-        let v: Vec<f64> = (0..xs.len())
+        res.v = (0..xs.len())
             .map(|k| window.iter().map(|s| s.2[k]).sum::<f64>() / m)
             .collect();
-        res.ghia = ghia_errors(cfg.re.round() as u32, &ys, &u, &xs, &v);
-        res.reference = reference_errors(cfg.re.round() as u32, &ys, &u, &xs, &v);
         res.averaged_samples = window.len();
-        res.particles = sim.particles.n_fluid();
-        res.ghosts = sim.particles.len() - res.particles;
-        res.steps = sim.steps;
-        res.t_end = sim.time;
         res.steady = steady_time.is_some();
         res.steady_time = steady_time;
         res.steady_rate = rate;
-        res.steady_rule = match st.compare_for(cfg.motion) {
+        res.steady_rule = match st.compare_for(motion) {
             SteadyCompare::Samples => format!(
                 "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
                  profiles averaged over the last {} time units",
@@ -547,10 +595,105 @@ impl Scene<2> for Cavity {
             ),
         };
         res.ys = ys;
-        res.u = u;
         res.xs = xs;
-        res.v = v;
+    }
+}
+
+/// The observables of a lid-driven box during a run (the square cavity's and the cube's): the
+/// monitor ranges (in the partial result) and the profile samples.
+pub struct CavityState {
+    profiles: CentrelineSamples,
+    res: CavityResult,
+}
+
+impl CavityState {
+    /// Before the first step of a run of `flow`, sampled at 101 even positions and `table`'s.
+    pub fn new(
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        table: Option<&CentrelineTable>,
+    ) -> Self {
+        let (ys, xs) = sample_positions(table);
+        CavityState {
+            profiles: CentrelineSamples::new(ys, xs, steady),
+            res: CavityResult {
+                re: flow.re,
+                n: flow.n,
+                ..Default::default()
+            },
+        }
+    }
+
+    /// After every step: widens the monitor ranges, samples the profiles when due;
+    /// [`ControlFlow::Break`] once steady and averaged ([`CentrelineSamples::observe`]).
+    pub fn observe<const D: usize, B: crate::boundary::Boundary<D>>(
+        &mut self,
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        rep: &FlowReport,
+        sim: &Simulation<D, B>,
+    ) -> ControlFlow<()> {
+        self.res.monitor.observe(rep);
+        let motion = flow.motion;
+        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
+        self.profiles.observe(steady, motion, sim.time, sample)
+    }
+
+    /// The result at the end of the run (averaged profiles, counts, wall time since
+    /// `started`); the errors (`ghia`, `reference`) are the scene's to fill.
+    pub fn finish<const D: usize, B: crate::boundary::Boundary<D>>(
+        self,
+        flow: &FlowConfig,
+        steady: &SteadyCriterion,
+        sim: &Simulation<D, B>,
+        started: Instant,
+    ) -> CavityResult {
+        let CavityState { profiles, mut res } = self;
+        let sample = |ys: &[f64], xs: &[f64]| sample_profiles(sim, ys, xs);
+        profiles.finish(steady, flow.motion, sim.time, sample, &mut res);
+        res.particles = sim.particles.n_fluid();
+        res.ghosts = sim.particles.len() - res.particles;
+        res.steps = sim.steps;
+        res.t_end = sim.time;
         res.wall_seconds = started.elapsed().as_secs_f64();
+        res
+    }
+}
+
+impl Scene<2> for Cavity {
+    type Boundary = Walls<2>;
+    type State = CavityState;
+    type Result = CavityResult;
+    type Summary = CavitySummary;
+
+    fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
+        build(cfg)
+    }
+
+    fn start(cfg: &CavityConfig, _sim: &Simulation<2, Walls<2>>) -> CavityState {
+        let table = ghia(cfg.re.round() as u32);
+        CavityState::new(cfg, &cfg.scene.steady, table.as_ref())
+    }
+
+    fn observe(
+        s: &mut CavityState,
+        cfg: &CavityConfig,
+        rep: &FlowReport,
+        sim: &Simulation<2, Walls<2>>,
+    ) -> ControlFlow<()> {
+        s.observe(cfg, &cfg.scene.steady, rep, sim)
+    }
+
+    fn finish(
+        s: CavityState,
+        cfg: &CavityConfig,
+        sim: &Simulation<2, Walls<2>>,
+        started: Instant,
+    ) -> CavityResult {
+        let mut res = s.finish(cfg, &cfg.scene.steady, sim, started);
+        let re = cfg.re.round() as u32;
+        res.ghia = ghia_errors(re, &res.ys, &res.u, &res.xs, &res.v);
+        res.reference = reference_errors(re, &res.ys, &res.u, &res.xs, &res.v);
         res
     }
 
@@ -560,25 +703,7 @@ impl Scene<2> for Cavity {
 
     /// `profile_u.csv` (`y,u` along x = 0.5) and `profile_v.csv` (`x,v` along y = 0.5).
     fn tables(_cfg: &CavityConfig, res: &CavityResult) -> Vec<Table> {
-        use std::fmt::Write;
-        let mut u = String::from("y,u\n");
-        for (y, val) in res.ys.iter().zip(&res.u) {
-            let _ = writeln!(u, "{y:.6},{val:.8}");
-        }
-        let mut v = String::from("x,v\n");
-        for (x, val) in res.xs.iter().zip(&res.v) {
-            let _ = writeln!(v, "{x:.6},{val:.8}");
-        }
-        vec![
-            Table {
-                name: "profile_u.csv".into(),
-                text: u,
-            },
-            Table {
-                name: "profile_v.csv".into(),
-                text: v,
-            },
-        ]
+        profile_tables(res)
     }
 
     #[cfg(feature = "cli")]
@@ -592,9 +717,14 @@ impl Scene<2> for Cavity {
     }
 }
 
-/// The flat summary written to `summary.json`.
+/// The flat summary written to `summary.json` by a lid-driven box: the square cavity
+/// ([`CavitySummary`]) and the cube (`S` = [`super::cube::Cube`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct CavitySummary {
+#[serde(bound(
+    serialize = "SceneConfig<S>: Serialize",
+    deserialize = "SceneConfig<S>: Deserialize<'de>"
+))]
+pub struct BoxSummary<S> {
     /// Reynolds number.
     pub re: f64,
     /// Fluid particles per side.
@@ -609,7 +739,8 @@ pub struct CavitySummary {
     pub t_end: f64,
     /// Wall-clock seconds of the run.
     pub wall_seconds: f64,
-    /// RMS of `u − u_Ghia` (lid-speed units, interior points); `null` without a table.
+    /// RMS of `u − u_Ghia` (lid-speed units, interior points); `null` without a table (and for
+    /// the cube).
     pub rms_u: Option<f64>,
     /// Max of `|u − u_Ghia|`.
     pub max_u: Option<f64>,
@@ -617,7 +748,8 @@ pub struct CavitySummary {
     pub rms_v: Option<f64>,
     /// Max of `|v − v_Ghia|`.
     pub max_v: Option<f64>,
-    /// RMS of `u − u_ref` against the extrapolated reference (`null` without one for this Re).
+    /// RMS of `u − u_ref` against the accurate reference (`null` without one for this Re): the
+    /// extrapolated one for the square, Albensoeder & Kuhlmann's for the cube.
     pub rms_u_ref: Option<f64>,
     /// Max of `|u − u_ref|`.
     pub max_u_ref: Option<f64>,
@@ -625,6 +757,10 @@ pub struct CavitySummary {
     pub rms_v_ref: Option<f64>,
     /// Max of `|v − v_ref|`.
     pub max_v_ref: Option<f64>,
+    /// The cube's largest departure from the mirror symmetry about z = 0.5
+    /// ([`super::cube::symmetry_error`]; absent for the square).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub symmetry: Option<f64>,
     /// Steadiness reached.
     pub steady: bool,
     /// Time it was first reached.
@@ -638,13 +774,16 @@ pub struct CavitySummary {
     #[serde(flatten)]
     pub monitor: MonitorRanges,
     /// The configuration of the run.
-    pub config: CavityConfig,
+    pub config: SceneConfig<S>,
 }
 
-impl CavitySummary {
-    /// Flattens a result and its configuration.
-    pub fn new(res: &CavityResult, cfg: &CavityConfig) -> Self {
-        CavitySummary {
+/// The square cavity's `summary.json`.
+pub type CavitySummary = BoxSummary<Cavity>;
+
+impl<S: Clone> BoxSummary<S> {
+    /// Flattens a result and its configuration (no `symmetry`).
+    pub fn new(res: &CavityResult, cfg: &SceneConfig<S>) -> Self {
+        BoxSummary {
             re: res.re,
             n: res.n,
             particles: res.particles,
@@ -660,6 +799,7 @@ impl CavitySummary {
             max_u_ref: res.reference.map(|g| g.max_u),
             rms_v_ref: res.reference.map(|g| g.rms_v),
             max_v_ref: res.reference.map(|g| g.max_v),
+            symmetry: None,
             steady: res.steady,
             steady_time: res.steady_time,
             steady_rate: res.steady_rate,
@@ -678,77 +818,39 @@ pub fn write_plots(
     res: &CavityResult,
     sim: &Simulation<2, Walls<2>>,
 ) -> Result<(), crate::plot::PlotError> {
-    use crate::plot::{line_charts, particles, Chart, Series};
-    let mut su = vec![Series::line(
-        "gpm",
-        res.u.iter().zip(&res.ys).map(|(u, y)| (*u, *y)).collect(),
-    )];
-    let mut sv = vec![Series::line(
-        "gpm",
-        res.xs.iter().zip(&res.v).map(|(x, v)| (*x, *v)).collect(),
-    )];
-    if let Some(t) = ghia(res.re.round() as u32) {
-        su.push(Series::points(
-            "Ghia et al. 1982",
-            t.u_vertical.iter().map(|(y, u)| (*u, *y)).collect(),
-        ));
-        sv.push(Series::points("Ghia et al. 1982", t.v_horizontal.clone()));
+    let re = res.re.round() as u32;
+    let mut refs = Vec::new();
+    if let Some(t) = ghia(re) {
+        refs.push(ReferenceCurve {
+            label: "Ghia et al. 1982",
+            table: t,
+            points: true,
+        });
     }
-    if let Some(t) = extrapolated(res.re.round() as u32) {
-        su.push(Series::line(
-            "extrapolated reference",
-            t.u_vertical.iter().map(|(y, u)| (*u, *y)).collect(),
-        ));
-        sv.push(Series::line(
-            "extrapolated reference",
-            t.v_horizontal.clone(),
-        ));
+    if let Some(t) = extrapolated(re) {
+        refs.push(ReferenceCurve {
+            label: "extrapolated reference",
+            table: t,
+            points: false,
+        });
     }
-    let rms = |g: Option<ProfileErrors>, name: &str, f: fn(&ProfileErrors) -> f64| {
-        g.map(|g| format!(" {name} {:.2}%", 100.0 * f(&g)))
-            .unwrap_or_default()
-    };
-    let err = format!(
-        "{}{}",
-        rms(res.ghia, "RMS Ghia", |g| g.rms_u),
-        rms(res.reference, "ref", |g| g.rms_u)
+    let (ghia_err, ref_err) = (
+        res.ghia.map(|g| ("RMS Ghia", g)),
+        res.reference.map(|g| ("ref", g)),
     );
-    let errv = format!(
-        "{}{}",
-        rms(res.ghia, "RMS Ghia", |g| g.rms_v),
-        rms(res.reference, "ref", |g| g.rms_v)
-    );
-    line_charts(
+    write_profile_plot(
         &dir.join("profiles.png"),
-        1400,
-        650,
-        &[
-            (
-                Chart {
-                    title: format!("u along x = 0.5, Re {} n {}:{err}", res.re, res.n),
-                    x_label: "u / U".into(),
-                    y_label: "y".into(),
-                    ..Default::default()
-                },
-                su,
-            ),
-            (
-                Chart {
-                    title: format!("v along y = 0.5, Re {} n {}:{errv}", res.re, res.n),
-                    x_label: "x".into(),
-                    y_label: "v / U".into(),
-                    ..Default::default()
-                },
-                sv,
-            ),
-        ],
+        res,
+        "",
+        &refs,
+        &[ghia_err, ref_err],
     )?;
     let p = &sim.particles;
     let (xs, speed): (Vec<[f64; 2]>, Vec<f64>) = (0..p.len())
         .filter(|&i| p.role[i].is_fluid())
         .map(|i| (p.x[i], crate::math::norm2(&p.u[i]).sqrt()))
         .unzip();
-    particles(
+    crate::plot::particles(
         &dir.join("particles.png"),
         &format!("Cavity Re {} t = {:.1}: speed", res.re, res.t_end),
         &xs,
@@ -757,6 +859,83 @@ pub fn write_plots(
         [1.0, 1.0],
         "|u| / U",
         800,
+    )
+}
+
+/// A reference drawn beside the simulated profiles ([`write_profile_plot`]).
+#[cfg(feature = "cli")]
+pub struct ReferenceCurve {
+    /// Legend entry.
+    pub label: &'static str,
+    /// The tables.
+    pub table: CentrelineTable,
+    /// Markers (tabulated points) rather than a line.
+    pub points: bool,
+}
+
+/// Writes the two centre-line profiles of `res` (`u` along the vertical line, `v` along the
+/// horizontal one) with `refs` beside them into the PNG `path`; the titles carry `what` (e.g.
+/// `" z = 0.5"`) and the RMS of each named error that is present.
+#[cfg(feature = "cli")]
+pub fn write_profile_plot(
+    path: &std::path::Path,
+    res: &CavityResult,
+    what: &str,
+    refs: &[ReferenceCurve],
+    errors: &[Option<(&str, ProfileErrors)>],
+) -> Result<(), crate::plot::PlotError> {
+    use crate::plot::{line_charts, Chart, Series};
+    let mut su = vec![Series::line(
+        "gpm",
+        res.u.iter().zip(&res.ys).map(|(u, y)| (*u, *y)).collect(),
+    )];
+    let mut sv = vec![Series::line(
+        "gpm",
+        res.xs.iter().zip(&res.v).map(|(x, v)| (*x, *v)).collect(),
+    )];
+    for r in refs {
+        let u = r.table.u_vertical.iter().map(|(y, u)| (*u, *y)).collect();
+        let v = r.table.v_horizontal.clone();
+        if r.points {
+            su.push(Series::points(r.label, u));
+            sv.push(Series::points(r.label, v));
+        } else {
+            su.push(Series::line(r.label, u));
+            sv.push(Series::line(r.label, v));
+        }
+    }
+    let rms = |f: fn(&ProfileErrors) -> f64| -> String {
+        errors
+            .iter()
+            .flatten()
+            .map(|(name, g)| format!(" {name} {:.2}%", 100.0 * f(g)))
+            .collect()
+    };
+    let (erru, errv) = (rms(|g| g.rms_u), rms(|g| g.rms_v));
+    line_charts(
+        path,
+        1400,
+        650,
+        &[
+            (
+                Chart {
+                    title: format!("u along x = 0.5{what}, Re {} n {}:{erru}", res.re, res.n),
+                    x_label: "u / U".into(),
+                    y_label: "y".into(),
+                    ..Default::default()
+                },
+                su,
+            ),
+            (
+                Chart {
+                    title: format!("v along y = 0.5{what}, Re {} n {}:{errv}", res.re, res.n),
+                    x_label: "x".into(),
+                    y_label: "v / U".into(),
+                    ..Default::default()
+                },
+                sv,
+            ),
+        ],
     )
 }
 

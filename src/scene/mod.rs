@@ -17,6 +17,7 @@
 
 pub mod cavity;
 pub mod channel;
+pub mod cube;
 pub mod dam_break;
 pub mod hydrostatic;
 pub mod manufactured;
@@ -1225,4 +1226,5 @@ registry! {
     2 => channel::Channel,
     2 => hydrostatic::Hydrostatic,
     2 => dam_break::DamBreak,
+    3 => cube::Cube,
 }
