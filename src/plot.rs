@@ -338,6 +338,16 @@ impl ParticleView {
     }
 }
 
+impl ParticleView {
+    /// Widens the box to hold `lo..hi` (a tank the particles have not filled yet).
+    pub fn include(&mut self, lo: [f64; 2], hi: [f64; 2]) {
+        for k in 0..2 {
+            self.lo[k] = self.lo[k].min(lo[k]);
+            self.hi[k] = self.hi[k].max(hi[k]);
+        }
+    }
+}
+
 /// The box and value range of snapshots seen one at a time (so that a caller streaming them
 /// keeps none): [`Bounds::add`] each, then [`Bounds::view`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -555,7 +565,7 @@ where
     for (k, line) in view.scale_note.split('\n').enumerate() {
         text(line, h as i32 - 34 + 14 * k as i32, 12)?;
     }
-    let bar = area.margin(36, 44, 20, 50);
+    let bar = area.margin(36, 44, 20, 35);
     let mut cb = ChartBuilder::on(&bar)
         .y_label_area_size(50)
         .build_cartesian_2d(0.0..1.0, vmin..vmax)
