@@ -339,6 +339,18 @@ impl ParticleView {
 }
 
 impl ParticleView {
+    /// Sets the colour scale to the `q` and `1 − q` quantiles of every value of `snapshots`
+    /// (kept when there is none, or when they are equal).
+    pub fn quantile_scale(&mut self, snapshots: &[Snapshot], q: f64) {
+        let all: Vec<f64> = snapshots
+            .iter()
+            .flat_map(|s| s.value.iter().copied())
+            .collect();
+        if let Some((lo, hi)) = quantile_range(&all, q).filter(|(lo, hi)| lo < hi) {
+            self.scale = (lo, hi);
+        }
+    }
+
     /// Widens the box to hold `lo..hi` (a tank the particles have not filled yet).
     pub fn include(&mut self, lo: [f64; 2], hi: [f64; 2]) {
         for k in 0..2 {
@@ -346,6 +358,22 @@ impl ParticleView {
             self.hi[k] = self.hi[k].max(hi[k]);
         }
     }
+}
+
+/// The `q` and `1 − q` quantiles of the finite `values` (the nearest ranks), `None` without
+/// finite values: a colour scale that a few outliers do not stretch.
+pub fn quantile_range(values: &[f64], q: f64) -> Option<(f64, f64)> {
+    let mut v: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let q = q.clamp(0.0, 0.5);
+    let last = (v.len() - 1) as f64;
+    Some((
+        v[(q * last).floor() as usize],
+        v[((1.0 - q) * last).ceil() as usize],
+    ))
 }
 
 /// The box and value range of snapshots seen one at a time (so that a caller streaming them
@@ -450,7 +478,7 @@ const PANEL_X_LABELS: u32 = 30;
 const PANEL_Y_LABELS: u32 = 48;
 /// Height of a panel's title, and width of the colour bar column.
 const PANEL_TITLE: u32 = 30;
-const COLOUR_BAR: u32 = 130;
+const COLOUR_BAR: u32 = 140;
 
 /// Width and height in pixels of one particle panel `width` pixels wide whose box keeps its
 /// aspect ratio (the height clamped to `[120, 4 width]`).
@@ -525,19 +553,32 @@ where
         .label_style(("sans-serif", 13))
         .draw()
         .map_err(|x| e(&x))?;
-    let px_per_unit = pw as f64 / (hi[0] - lo[0]);
-    let r = (0.55 * view.spacing * px_per_unit).round().clamp(1.0, 10.0) as i32;
+    // a dot is about one spacing across: a circle when that is 8 pixels or more, a square
+    // (which tiles without gaps) below
+    let across = view.spacing * pw as f64 / (hi[0] - lo[0]);
     let (vmin, vmax) = view.scale;
     let grey = RGBColor(160, 160, 160);
-    ctx.draw_series(s.x.iter().zip(&s.value).map(|(p, v)| {
-        let colour = if v.is_finite() {
+    let colour = |v: f64| {
+        if v.is_finite() {
             colormap((v - vmin) / (vmax - vmin))
         } else {
             grey
-        };
-        Circle::new((p[0], p[1]), r, colour.filled())
-    }))
-    .map_err(|x| e(&x))?;
+        }
+    };
+    let dots = s.x.iter().zip(&s.value);
+    if across >= 8.0 {
+        let r = (0.55 * across).round().min(10.0) as i32;
+        ctx.draw_series(dots.map(|(p, v)| Circle::new((p[0], p[1]), r, colour(*v).filled())))
+            .map_err(|x| e(&x))?;
+    } else {
+        // a little more than one spacing: the water stretches between particles
+        let side = (1.2 * across).ceil().max(2.0) as i32;
+        let (a, b) = (-side / 2, side - side / 2);
+        ctx.draw_series(dots.map(|(p, v)| {
+            EmptyElement::at((p[0], p[1])) + Rectangle::new([(a, a), (b, b)], colour(*v).filled())
+        }))
+        .map_err(|x| e(&x))?;
+    }
     Ok(())
 }
 
@@ -562,18 +603,21 @@ where
         .map_err(|x| e(&x))
     };
     text(&view.value_label, 8, 15)?;
-    for (k, line) in view.scale_note.split('\n').enumerate() {
-        text(line, h as i32 - 34 + 14 * k as i32, 12)?;
+    let lines = view.scale_note.lines().count() as i32;
+    for (k, line) in view.scale_note.lines().enumerate() {
+        text(line, h as i32 - 6 - 14 * (lines - k as i32), 12)?;
     }
-    let bar = area.margin(36, 44, 20, 35);
+    let bar = area.margin(36, 16 + 14 * lines, 8, 35);
     let mut cb = ChartBuilder::on(&bar)
-        .y_label_area_size(50)
+        .y_label_area_size(62)
         .build_cartesian_2d(0.0..1.0, vmin..vmax)
         .map_err(|x| e(&x))?;
+    // a tick a rounding error away from zero is 0, not -2.78e-17
+    let zero = 1e-9 * (vmax - vmin);
     cb.configure_mesh()
         .disable_mesh()
         .disable_x_axis()
-        .y_label_formatter(&|v| tick(*v))
+        .y_label_formatter(&|v| tick(if v.abs() < zero { 0.0 } else { *v }))
         .label_style(("sans-serif", 12))
         .draw()
         .map_err(|x| e(&x))?;

@@ -41,9 +41,7 @@ fn small_dam_break(big_t: f64) -> DamBreakConfig {
 fn gif_frames(path: &Path) -> ((u16, u16), Vec<(u16, u16, u16)>) {
     let mut opts = gif::DecodeOptions::new();
     opts.set_color_output(gif::ColorOutput::Indexed);
-    let mut d = opts
-        .read_info(std::fs::File::open(path).unwrap())
-        .unwrap();
+    let mut d = opts.read_info(std::fs::File::open(path).unwrap()).unwrap();
     let screen = (d.width(), d.height());
     let mut frames = Vec::new();
     while let Some(f) = d.read_next_frame().unwrap() {
@@ -159,13 +157,19 @@ fn bad_fields_files_and_outputs_are_errors_that_name_them() {
     let diag = dir.path().join("diag.mcap");
     record_dam_break(&diag, RecordLevel::Diagnostics);
     let e = animate(&diag, &out, &AnimateOptions::default(), |_, _| {}).unwrap_err();
-    assert!(matches!(&e, RecordError::NoSnapshots { path } if path == &diag), "{e}");
+    assert!(
+        matches!(&e, RecordError::NoSnapshots { path } if path == &diag),
+        "{e}"
+    );
     assert!(e.to_string().contains("--record full"), "{e}");
 
     // a directory that does not exist
     let nowhere = dir.path().join("missing").join("a.gif");
     let e = animate(&full, &nowhere, &AnimateOptions::default(), |_, _| {}).unwrap_err();
-    assert!(matches!(&e, RecordError::Io { path, .. } if path == &nowhere), "{e}");
+    assert!(
+        matches!(&e, RecordError::Io { path, .. } if path == &nowhere),
+        "{e}"
+    );
     // the input itself
     let e = animate(&full, &full, &AnimateOptions::default(), |_, _| {}).unwrap_err();
     assert!(matches!(&e, RecordError::NotAFile { .. }), "{e}");
@@ -176,7 +180,10 @@ fn bad_fields_files_and_outputs_are_errors_that_name_them() {
         ..Default::default()
     };
     let e = animate(&full, &out, &opts, |_, _| {}).unwrap_err();
-    assert!(matches!(&e, RecordError::Render { path, .. } if path == &out), "{e}");
+    assert!(
+        matches!(&e, RecordError::Render { path, .. } if path == &out),
+        "{e}"
+    );
     assert!(!out.exists() && !gpm::record::output::partial_path(&out).exists());
 }
 
@@ -194,12 +201,15 @@ fn replay_animate_command_line() {
         .arg(&run)
         .arg("--animate")
         .arg(&gif)
-        .args(["--field", "u", "--size", "360x240", "--range=-1:1"])
+        .args(["--field", "u", "--size", "360x240", "--scale=-1:1"])
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("360×240 pixels") && stderr.contains("'vx'"), "{stderr}");
+    assert!(
+        stderr.contains("360×240 pixels") && stderr.contains("'vx'"),
+        "{stderr}"
+    );
     assert_eq!(gif_frames(&gif).0, (360, 240));
 
     let out = Command::new(gpm)
@@ -241,13 +251,20 @@ fn the_dam_break_draws_its_pressure_at_a_few_times() {
     let run = gpm::scene::run_scene(&cfg, |_| {}, |_, _| Ok(ControlFlow::Continue(()))).unwrap();
     let kept: Vec<f64> = run.result.pressure.iter().map(|s| s.0).collect();
     assert_eq!(kept.len(), 2, "{kept:?}");
-    assert!(kept[0] > 0.0 && kept[0] < 0.1 && kept[1] >= 1.0 && kept[1] < 1.1, "{kept:?}");
+    assert!(
+        kept[0] > 0.0 && kept[0] < 0.1 && kept[1] >= 1.0 && kept[1] < 1.1,
+        "{kept:?}"
+    );
     let water = run.result.particles;
-    assert!(run.result.pressure.iter().all(|s| s.1.len() == water && s.2.len() == water));
+    assert!(run
+        .result
+        .pressure
+        .iter()
+        .all(|s| s.1.len() == water && s.2.len() == water));
     run.write_plots(dir.path(), &cfg).unwrap();
     // three panels (T ≈ 0, 1, and 1.1 at the end) in two columns: two rows of 560 pixels
     // wide panels and the colour bar
     let (w, h) = png_size(&dir.path().join("pressure.png"));
-    assert_eq!(w, 2 * 560 + 130);
+    assert_eq!(w, 2 * 560 + 140);
     assert!((300..900).contains(&h), "height {h}");
 }

@@ -27,7 +27,7 @@ use clap::{Args, Parser, Subcommand};
 use gpm::flow::Motion;
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
-use gpm::record::animate::{animate, AnimateOptions};
+use gpm::record::animate::{animate, AnimateOptions, Scale};
 use gpm::record::output::{check_input_file, check_output_file};
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
@@ -249,10 +249,11 @@ struct ReplayArgs {
     /// At most this many frames in --animate (evenly spaced snapshots beyond).
     #[arg(long, default_value_t = 200, requires = "animate")]
     max_frames: usize,
-    /// Colour scale of --animate, LOW:HIGH (values beyond take the end colours); default: the
-    /// smallest to the largest value over all frames.
-    #[arg(long, value_name = "LOW:HIGH", value_parser = colour_range, requires = "animate")]
-    range: Option<(f64, f64)>,
+    /// Colour scale of --animate, fixed for all frames: min-max (the smallest to the largest
+    /// value over all frames), robust (the 1 % to the 99 % quantile over all frames), or
+    /// LOW:HIGH; values beyond it take the end colours.
+    #[arg(long, value_name = "SCALE", default_value = "min-max", value_parser = colour_scale, requires = "animate")]
+    scale: Scale,
     /// Re-run every recorded projection input and report the largest differences.
     #[arg(long)]
     rerun: bool,
@@ -281,16 +282,22 @@ fn frame_size(s: &str) -> Result<(u32, Option<u32>), String> {
     }
 }
 
-/// `-0.5:3`.
-fn colour_range(s: &str) -> Result<(f64, f64), String> {
-    let bad = || format!("'{s}': expected LOW:HIGH, two finite numbers with LOW < HIGH");
+/// `min-max`, `robust` or `-0.5:3`.
+fn colour_scale(s: &str) -> Result<Scale, String> {
+    match s.trim() {
+        "min-max" | "minmax" => return Ok(Scale::MinMax),
+        "robust" => return Ok(Scale::Robust),
+        _ => {}
+    }
+    let bad =
+        || format!("'{s}': expected min-max, robust, or LOW:HIGH (two finite numbers, LOW < HIGH)");
     let (a, b) = s.split_once(':').ok_or_else(bad)?;
-    let (a, b): (f64, f64) = (
+    let (low, high): (f64, f64) = (
         a.trim().parse().map_err(|_| bad())?,
         b.trim().parse().map_err(|_| bad())?,
     );
-    if a.is_finite() && b.is_finite() && a < b {
-        Ok((a, b))
+    if low.is_finite() && high.is_finite() && low < high {
+        Ok(Scale::Given { low, high })
     } else {
         Err(bad())
     }
@@ -605,7 +612,7 @@ fn replay(a: ReplayArgs) -> Result<ExitCode> {
             width: a.size.0,
             height: a.size.1,
             max_frames: a.max_frames,
-            range: a.range,
+            scale: a.scale,
         };
         let pb = progress_bar(0, a.quiet, "{spinner} {msg} [{bar:40}] {pos}/{len} frames");
         pb.set_message("animating");

@@ -11,7 +11,7 @@ use super::output::{check_output_file, partial_path};
 use super::replay::{scan, LoggedMessage, Scan};
 use super::schema::{PointCloud, SCHEMA_POINT_CLOUD, TOPIC_PARTICLES};
 use super::RecordError;
-use crate::plot::{Bounds, ParticleGif, PlotError, Snapshot};
+use crate::plot::{quantile_range, Bounds, ParticleGif, PlotError, Snapshot};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -34,11 +34,35 @@ pub struct AnimateOptions {
     /// At most this many frames: with more snapshots, this many evenly spaced ones (the first
     /// and the last among them).
     pub max_frames: usize,
-    /// The colour scale `(low, high)`; `None`: the smallest to the largest value over the drawn
-    /// frames. Values beyond it take the end colours (a pressure spike of a few particles
-    /// would otherwise leave the rest of the animation in one colour).
-    pub range: Option<(f64, f64)>,
+    /// How the colour scale, fixed for the whole animation, is chosen.
+    pub scale: Scale,
 }
+
+/// The colour scale of an animation. Values beyond it take the end colours.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scale {
+    /// The smallest to the largest value over the drawn frames.
+    #[default]
+    MinMax,
+    /// The 1 % to the 99 % quantile of the values of all drawn frames (of at most 20 000
+    /// evenly strided values per frame): a pressure spike of a few particles does not leave
+    /// the rest of the animation in one colour.
+    Robust,
+    /// Given.
+    Given {
+        /// Value of the lowest colour.
+        low: f64,
+        /// Value of the highest colour.
+        high: f64,
+    },
+}
+
+/// The quantile of [`Scale::Robust`] (and `1 −` it).
+const ROBUST: f64 = 0.01;
+/// At most about this many values of a snapshot are kept for [`Scale::Robust`] (evenly
+/// strided), so that the scale of a long run of many particles needs little memory.
+const SAMPLE: usize = 20_000;
 
 impl Default for AnimateOptions {
     fn default() -> Self {
@@ -48,7 +72,7 @@ impl Default for AnimateOptions {
             width: 720,
             height: None,
             max_frames: 200,
-            range: None,
+            scale: Scale::MinMax,
         }
     }
 }
@@ -68,8 +92,7 @@ pub struct AnimateReport {
     pub size: (u32, u32),
     /// The point-cloud field drawn (`p` for `pressure`, `role` for `surface`).
     pub field: String,
-    /// The colour scale: smallest and largest value over the drawn frames, or the range asked
-    /// for.
+    /// The colour scale (the values of its two ends).
     pub scale: (f64, f64),
     /// Times of the first and last frame.
     pub time_span: (f64, f64),
@@ -90,7 +113,7 @@ enum Source {
 const NAMED: [(&str, &str, &str); 7] = [
     ("speed", "speed", "speed |u|"),
     ("pressure", "p", "pressure p"),
-    ("surface", "role", "surface band"),
+    ("surface", "role", "surface band = 1"),
     ("u", "vx", "velocity u"),
     ("v", "vy", "velocity v"),
     ("w", "vz", "velocity w"),
@@ -243,7 +266,8 @@ fn write_gif<W: Write>(
     };
     // pass 1: the snapshots, their times, boxes and value ranges
     let mut field: Option<(Source, String)> = None;
-    let mut frames: Vec<(f64, Bounds)> = Vec::new();
+    // per snapshot: time, box and value range, values for a robust scale
+    let mut frames: Vec<(f64, Bounds, Vec<f64>)> = Vec::new();
     let mut spacing = 0.0;
     scan(
         path,
@@ -267,7 +291,15 @@ fn write_gif<W: Write>(
             if frames.is_empty() {
                 spacing = b.spacing(x.len());
             }
-            frames.push((m.log_time as f64 * 1e-9, b));
+            let sample = match opts.scale {
+                Scale::Robust => v
+                    .iter()
+                    .step_by(v.len().div_ceil(SAMPLE).max(1))
+                    .copied()
+                    .collect(),
+                _ => Vec::new(),
+            };
+            frames.push((m.log_time as f64 * 1e-9, b, sample));
             Ok(())
         },
         |_, _| {},
@@ -279,20 +311,29 @@ fn write_gif<W: Write>(
     };
     let chosen = evenly(frames.len(), opts.max_frames.max(1));
     let mut bounds = Bounds::new();
+    let mut sample = Vec::new();
     for &k in &chosen {
         bounds.merge(&frames[k].1);
+        sample.extend_from_slice(&frames[k].2);
     }
     let mut view = bounds.view(spacing, &label, "");
-    view.scale_note = match opts.range {
-        None => format!("fixed scale: min–max\nover all {} frames", chosen.len()),
-        Some((lo, hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {
-            view.scale = (lo, hi);
+    let n = chosen.len();
+    view.scale_note = match opts.scale {
+        Scale::MinMax => format!("fixed scale: min–max\nover all {n} frames"),
+        Scale::Robust => {
+            if let Some((lo, hi)) = quantile_range(&sample, ROBUST).filter(|(lo, hi)| lo < hi) {
+                view.scale = (lo, hi);
+            }
+            format!("fixed: 1–99 % quantiles\nover all {n} frames")
+        }
+        Scale::Given { low, high } if low.is_finite() && high.is_finite() && low < high => {
+            view.scale = (low, high);
             "fixed scale: given;\nbeyond it: end colours".into()
         }
-        Some((lo, hi)) => {
+        Scale::Given { low, high } => {
             return Err(RecordError::Render {
                 path: out.to_path_buf(),
-                message: format!("colour range {lo}..{hi}: must be finite with low < high"),
+                message: format!("colour range {low}..{high}: must be finite with low < high"),
             })
         }
     };
