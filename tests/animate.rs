@@ -5,7 +5,8 @@
 #![cfg(feature = "cli")]
 
 use gpm::error::RecordError;
-use gpm::record::animate::{animate, AnimateOptions};
+use gpm::plot::quantile_range;
+use gpm::record::animate::{animate, AnimateOptions, Scale};
 use gpm::record::replay::scan;
 use gpm::record::schema::{PointCloud, TOPIC_PARTICLES};
 use gpm::record::{RecordLevel, RecorderOptions};
@@ -124,6 +125,43 @@ fn a_recorded_dam_break_animates_into_a_gif_of_every_snapshot() {
     assert_eq!(r.scale, (0.0, 1.0), "band particles 1, the rest 0");
     let (screen, frames) = gif_frames(&out);
     assert_eq!((screen, frames.len()), ((320, 200), 3));
+
+    // robust: inside the min–max range; given: as given
+    let robust = AnimateOptions {
+        field: "pressure".into(),
+        scale: Scale::Robust,
+        ..Default::default()
+    };
+    let r = animate(&run, &out, &robust, |_, _| {}).unwrap();
+    assert!(
+        r.scale.0 >= lo && r.scale.1 <= hi && r.scale.0 < r.scale.1,
+        "{:?}",
+        r.scale
+    );
+    assert!(
+        r.scale != (lo, hi),
+        "no pressure spike at all? {:?}",
+        r.scale
+    );
+    let given = AnimateOptions {
+        scale: Scale::Given {
+            low: -1.0,
+            high: 2.0,
+        },
+        ..robust
+    };
+    let r = animate(&run, &out, &given, |_, _| {}).unwrap();
+    assert_eq!(r.scale, (-1.0, 2.0));
+}
+
+#[test]
+fn quantile_ranges_ignore_a_few_outliers() {
+    let mut v: Vec<f64> = (0..=100).map(f64::from).collect();
+    assert_eq!(quantile_range(&v, 0.01), Some((1.0, 99.0)));
+    v[50] = 1e9;
+    v.push(f64::NAN);
+    assert_eq!(quantile_range(&v, 0.01), Some((1.0, 100.0)));
+    assert_eq!(quantile_range(&[f64::NAN], 0.01), None);
 }
 
 #[test]
