@@ -38,8 +38,11 @@ fn small_dam_break(big_t: f64) -> DamBreakConfig {
     })
 }
 
+/// A decoded frame's width, height and delay (hundredths of a second).
+type FrameInfo = (u16, u16, u16);
+
 /// Frames and their sizes of the GIF `path`, and the logical screen size.
-fn gif_frames(path: &Path) -> ((u16, u16), Vec<(u16, u16, u16)>) {
+fn gif_frames(path: &Path) -> ((u16, u16), Vec<FrameInfo>) {
     let mut opts = gif::DecodeOptions::new();
     opts.set_color_output(gif::ColorOutput::Indexed);
     let mut d = opts.read_info(std::fs::File::open(path).unwrap()).unwrap();
