@@ -231,49 +231,48 @@ fn bad_fields_files_and_outputs_are_errors_that_name_them() {
 /// The command line: `--animate` with `--field`, `--size`, `--range`, and an unknown field.
 #[test]
 fn replay_animate_command_line() {
-    use std::process::Command;
-    let gpm = env!("CARGO_BIN_EXE_gpm");
     let dir = tempfile::tempdir().unwrap();
-    let run = dir.path().join("run.mcap");
-    record_dam_break(&run, RecordLevel::Full);
-    let gif = dir.path().join("db.gif");
-    let out = Command::new(gpm)
-        .args(["replay", "--quiet"])
-        .arg(&run)
-        .arg("--animate")
-        .arg(&gif)
-        .args(["--field", "u", "--size", "360x240", "--scale=-1:1"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{stderr}");
+    record_dam_break(&dir.path().join("run.mcap"), RecordLevel::Full);
+    // `gpm replay --quiet run.mcap ARGS` in the directory: success and standard error
+    let replay = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_gpm"))
+            .args(["replay", "--quiet", "run.mcap"])
+            .args(args)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        (
+            out.status.success(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (ok, stderr) = replay(&[
+        "--animate",
+        "db.gif",
+        "--field",
+        "u",
+        "--size",
+        "360x240",
+        "--scale=-1:1",
+    ]);
+    assert!(ok, "{stderr}");
     assert!(
         stderr.contains("360×240 pixels") && stderr.contains("'vx'"),
         "{stderr}"
     );
-    assert_eq!(gif_frames(&gif).0, (360, 240));
+    assert_eq!(gif_frames(&dir.path().join("db.gif")).0, (360, 240));
 
-    let out = Command::new(gpm)
-        .args(["replay", "--quiet"])
-        .arg(&run)
-        .args(["--animate", "x.gif", "--field", "nope"])
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+    let (ok, stderr) = replay(&["--animate", "x.gif", "--field", "nope"]);
+    assert!(!ok);
     assert!(
         stderr.contains("no field 'nope'") && stderr.contains("available: speed, pressure"),
         "{stderr}"
     );
-    // --field without --animate is refused by the parser
-    let out = Command::new(gpm)
-        .args(["replay", "--quiet"])
-        .arg(&run)
-        .args(["--field", "p"])
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
+    // --field without --animate is refused by the parser, and so is a bad scale
+    let (ok, stderr) = replay(&["--field", "p"]);
+    assert!(!ok && stderr.contains("--animate"), "{stderr}");
+    let (ok, stderr) = replay(&["--animate", "x.gif", "--scale", "2:1"]);
+    assert!(!ok && stderr.contains("LOW < HIGH"), "{stderr}");
 }
 
 /// Width and height from a PNG's header.
