@@ -36,6 +36,14 @@ pub trait Boundary<const D: usize>: Send + Sync {
     fn periodicity(&self) -> Periodicity<D>;
     /// Copies scalar values into the ghosts.
     fn fill_scalar(&self, role: &[Role], v: &mut [f64]);
+    /// Continues the pressure into the ghosts with the wall's Neumann condition
+    /// `∂p/∂n = ρ g·n` (a wall at rest under the body force `g`; `rho_g = ρ g`): the image of
+    /// `x_src` gets `p_g = p_src + ρ g·(x_g − x_src)`, which continues a hydrostatic pressure
+    /// exactly. The default (and `rho_g = 0`) is [`fill_scalar`](Self::fill_scalar).
+    fn fill_pressure(&self, x: &[[f64; D]], role: &[Role], p: &mut [f64], rho_g: [f64; D]) {
+        let _ = (x, rho_g);
+        self.fill_scalar(role, p);
+    }
     /// Continues a vector field into the ghosts.
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind);
     /// Continues a velocity-gradient field `G[a][b] = ∂u_a/∂x_b` into the ghosts as the
@@ -303,6 +311,24 @@ impl<const D: usize> Boundary<D> for Walls<D> {
 
     fn fill_scalar(&self, role: &[Role], v: &mut [f64]) {
         fill_from_sources(role, v, |s, _| *s);
+    }
+
+    fn fill_pressure(&self, x: &[[f64; D]], role: &[Role], p: &mut [f64], rho_g: [f64; D]) {
+        self.fill_scalar(role, p);
+        if rho_g.iter().all(|&g| g == 0.0) {
+            return;
+        }
+        let first = first_ghost(role).min(p.len());
+        p[first..]
+            .par_iter_mut()
+            .zip(role[first..].par_iter())
+            .for_each(|(g, r)| {
+                if let Role::Ghost { source, walls } = r {
+                    let xs = &x[*source as usize];
+                    let xg = self.image(xs, *walls);
+                    *g += (0..D).map(|k| rho_g[k] * (xg[k] - xs[k])).sum::<f64>();
+                }
+            });
     }
 
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind) {

@@ -598,6 +598,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 &mut self.particles,
                 &mut u,
                 &self.material_accel,
+                self.params.projection.rho_g(),
                 &self.nl,
                 ls,
                 &self.boundary,

@@ -184,6 +184,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     p: &mut Particles<D>,
     u: &mut [[f64; D]],
     accel: &[[f64; D]],
+    rho_g: [f64; D],
     nl: &NeighborList<D>,
     ls: Option<LsPair<'_, D>>,
     boundary: &B,
@@ -300,7 +301,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         s.grad.resize(n, [[0.0; D]; D]);
         s.gp.resize(n, [0.0; D]);
         if boundary.has_ghosts() {
-            boundary.fill_scalar(&p.role, &mut p.p);
+            boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
         }
         match ls {
             Some((lu, lp)) => {

@@ -226,6 +226,12 @@ pub struct ProjectionParams<const D: usize> {
 }
 
 impl<const D: usize> ProjectionParams<D> {
+    /// `ρ g`, the wall-normal pressure gradient of the fluid at rest
+    /// ([`Boundary::fill_pressure`]).
+    pub fn rho_g(&self) -> [f64; D] {
+        self.gravity.map(|g| self.rho * g)
+    }
+
     /// `ρ = 1`, viscosity `nu`, no body force, the rotational scheme, default solver, one
     /// floating component allowed (closed box), the difference gradient and the sum-form source.
     pub fn new(nu: f64) -> Self {
@@ -609,7 +615,12 @@ impl<const D: usize> ProjectionStep<D> {
     ) {
         let n = particles.len();
         if boundary.has_ghosts() {
-            boundary.fill_scalar(&particles.role, &mut particles.p);
+            boundary.fill_pressure(
+                &particles.x,
+                &particles.role,
+                &mut particles.p,
+                params.rho_g(),
+            );
         }
         out.clear();
         out.resize(n, [0.0; D]);
@@ -852,7 +863,12 @@ impl<const D: usize> ProjectionStep<D> {
         let rho = params.rho;
         if boundary.has_ghosts() {
             boundary.fill_vector(&particles.role, &mut particles.u, VectorKind::Velocity);
-            boundary.fill_scalar(&particles.role, &mut particles.p);
+            boundary.fill_pressure(
+                &particles.x,
+                &particles.role,
+                &mut particles.p,
+                params.rho_g(),
+            );
         }
         let role = &particles.role;
         let vol = &particles.vol;
@@ -1181,13 +1197,13 @@ impl<const D: usize> ProjectionStep<D> {
         );
         if params.pressure_smoothing > 0.0 && plan.pressure_gradient {
             if ghosts {
-                boundary.fill_scalar(role, &mut self.p_new);
+                boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
             }
             stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, &mut self.p_new);
         }
         if ghosts {
             boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
-            boundary.fill_scalar(role, &mut self.p_new);
+            boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
         }
         if params.free_surface {
             stages::extend_to_band(nl, role, &mut self.u_new);
