@@ -8,6 +8,7 @@
 //! Defaults: column width a = 1, height 2a, tank length 5a, 40 particles across the column,
 //! g = 1, `re` = √(g a³)/ν = 4·10⁴, to T = t√(2g/a) = 3. Writes into `--out`: `front.csv`
 //! (`T,Z`), `height.csv` (`tau,H`), `dam_break.png` (both against the experiment),
+//! `pressure.png` (the water coloured by pressure at T ≈ 0, 1, 2 and at the end),
 //! `summary.json` (resolution, steps, `wall_seconds`, `front_deviation`, `height_deviation`,
 //! surface and splash counts, the monitor's ranges, the configuration) and `run.mcap` (with
 //! particle snapshots every 10 steps).

@@ -402,6 +402,37 @@ pub enum RecordError {
         /// What it is, and why it is refused.
         reason: String,
     },
+    /// The file has no particle snapshots to draw.
+    #[error(
+        "{}: no /particles snapshots to draw (record the run with --record full)",
+        path.display()
+    )]
+    NoSnapshots {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A field asked for by name that the snapshots do not have.
+    #[error(
+        "{}: the particle snapshots have no field '{field}'; available: {}",
+        path.display(),
+        available.join(", ")
+    )]
+    UnknownField {
+        /// The file.
+        path: PathBuf,
+        /// The name asked for.
+        field: String,
+        /// The names that would have worked.
+        available: Vec<String>,
+    },
+    /// Drawing or encoding an image (PNG, GIF) failed.
+    #[error("{}: drawing failed: {message}", path.display())]
+    Render {
+        /// The image file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
     /// Re-running a recorded projection failed.
     #[error("{}: re-running the projection of step {step} failed: {source}", path.display())]
     Rerun {

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
 # The library without its command line: a dependent crate with `default-features = false` must
-# compile none of the command-line crates (clap, indicatif, plotters, anyhow, ctrlc), and the
+# compile none of the command-line crates (clap, indicatif, plotters, gif, anyhow, ctrlc), and the
 # library must build that way. Run by .ci/run; see README "Using gpm as a library".
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cli_crates=(clap indicatif plotters anyhow ctrlc nix)
+cli_crates=(clap indicatif plotters gif anyhow ctrlc nix)
 tree="$(cargo tree -e normal --no-default-features --prefix none --format '{p}')"
 bad=0
 for c in "${cli_crates[@]}"; do

@@ -5,6 +5,7 @@
 //! gpm run taylor-green --n 32 --t-end 0.5 --record full --record-every 10 --out results/tg
 //! gpm replay results/cavity/run.mcap --csv steps.csv --plot steps.png
 //! gpm replay results/tg/run.mcap --vtk results/tg/vtk --rerun
+//! gpm replay results/tg/run.mcap --animate tg.gif --field pressure
 //! ```
 //!
 //! Errors are printed as one line (with their causes) and the exit status is non-zero. SIGINT
@@ -26,6 +27,7 @@ use clap::{Args, Parser, Subcommand};
 use gpm::flow::Motion;
 use gpm::kernel::Weight;
 use gpm::projection::Scheme;
+use gpm::record::animate::{animate, AnimateOptions, Scale};
 use gpm::record::output::{check_input_file, check_output_file};
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
@@ -141,7 +143,7 @@ struct Cli {
 enum Command {
     /// Run a scene and record it to DIR/run.mcap.
     Run(RunArgs),
-    /// Summarise, plot, export or re-run a recorded MCAP file (complete or cut).
+    /// Summarise, plot, animate, export or re-run a recorded MCAP file (complete or cut).
     Replay(ReplayArgs),
 }
 
@@ -230,6 +232,28 @@ struct ReplayArgs {
     /// Write the particle snapshots as VTK files (ParaView) into this directory.
     #[arg(long)]
     vtk: Option<PathBuf>,
+    /// Draw the particle snapshots (a `--record full` run) as an animated GIF.
+    #[arg(long, value_name = "OUT.gif")]
+    animate: Option<PathBuf>,
+    /// Colour of --animate: speed, pressure, surface (the free-surface band), u, v, w, or any
+    /// field of the point clouds (x, y, vx, p, role, …).
+    #[arg(long, default_value = "speed", requires = "animate")]
+    field: String,
+    /// Frames per second of --animate (1 to 50).
+    #[arg(long, default_value_t = 10.0, requires = "animate")]
+    fps: f64,
+    /// Frame size of --animate in pixels: WxH, or W alone (the height then follows the
+    /// domain's aspect ratio).
+    #[arg(long, default_value = "720", value_parser = frame_size, requires = "animate")]
+    size: (u32, Option<u32>),
+    /// At most this many frames in --animate (evenly spaced snapshots beyond).
+    #[arg(long, default_value_t = 200, requires = "animate")]
+    max_frames: usize,
+    /// Colour scale of --animate, fixed for all frames: min-max (the smallest to the largest
+    /// value over all frames), robust (the 1 % to the 99 % quantile over all frames), or
+    /// LOW:HIGH; values beyond it take the end colours.
+    #[arg(long, value_name = "SCALE", default_value = "min-max", value_parser = colour_scale, requires = "animate")]
+    scale: Scale,
     /// Re-run every recorded projection input and report the largest differences.
     #[arg(long)]
     rerun: bool,
@@ -243,6 +267,40 @@ struct ReplayArgs {
     /// are read and the damage is a warning).
     #[arg(long)]
     strict: bool,
+}
+
+/// `720x400` or `720`.
+fn frame_size(s: &str) -> Result<(u32, Option<u32>), String> {
+    let num = |t: &str| {
+        t.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("'{s}': expected WIDTHxHEIGHT or WIDTH in pixels"))
+    };
+    match s.split_once(['x', 'X']) {
+        Some((w, h)) => Ok((num(w)?, Some(num(h)?))),
+        None => Ok((num(s)?, None)),
+    }
+}
+
+/// `min-max`, `robust` or `-0.5:3`.
+fn colour_scale(s: &str) -> Result<Scale, String> {
+    match s.trim() {
+        "min-max" | "minmax" => return Ok(Scale::MinMax),
+        "robust" => return Ok(Scale::Robust),
+        _ => {}
+    }
+    let bad =
+        || format!("'{s}': expected min-max, robust, or LOW:HIGH (two finite numbers, LOW < HIGH)");
+    let (a, b) = s.split_once(':').ok_or_else(bad)?;
+    let (low, high): (f64, f64) = (
+        a.trim().parse().map_err(|_| bad())?,
+        b.trim().parse().map_err(|_| bad())?,
+    );
+    if low.is_finite() && high.is_finite() && low < high {
+        Ok(Scale::Given { low, high })
+    } else {
+        Err(bad())
+    }
 }
 
 fn main() -> ExitCode {
@@ -500,7 +558,7 @@ fn observe(pb: &ProgressBar, rep: &gpm::flow::FlowReport, t_end: f64) -> Control
 fn replay(a: ReplayArgs) -> Result<ExitCode> {
     let bytes_template = "{spinner} {msg} [{bar:40}] {bytes}/{total_bytes}";
     let len = check_input_file(&a.file)?.len();
-    for out in [&a.csv, &a.plot].into_iter().flatten() {
+    for out in [&a.csv, &a.plot, &a.animate].into_iter().flatten() {
         check_output_file(out, &a.file)?;
     }
     if let Some(dir) = &a.vtk {
@@ -545,6 +603,38 @@ fn replay(a: ReplayArgs) -> Result<ExitCode> {
             "wrote {} snapshots and {}",
             out.files.len(),
             out.collection.display()
+        );
+    }
+    if let Some(gif) = &a.animate {
+        let opts = AnimateOptions {
+            field: a.field.clone(),
+            fps: a.fps,
+            width: a.size.0,
+            height: a.size.1,
+            max_frames: a.max_frames,
+            scale: a.scale,
+        };
+        let pb = progress_bar(0, a.quiet, "{spinner} {msg} [{bar:40}] {pos}/{len} frames");
+        pb.set_message("animating");
+        let r = animate(&a.file, gif, &opts, |done, total| {
+            pb.set_length(total as u64);
+            pb.set_position(done as u64);
+        })?;
+        pb.finish_and_clear();
+        errln!(
+            "wrote {} ({} frames of {} snapshots, {}×{} pixels, {} bytes; '{}' from {:.4e} to \
+             {:.4e}, t = {:.4} .. {:.4})",
+            gif.display(),
+            r.frames,
+            r.snapshots,
+            r.size.0,
+            r.size.1,
+            r.bytes,
+            r.field,
+            r.scale.0,
+            r.scale.1,
+            r.time_span.0,
+            r.time_span.1
         );
     }
     if a.rerun {

@@ -983,9 +983,9 @@ impl Replay {
                 ],
             ),
         ];
-        line_charts(out, 3000, 600, &charts).map_err(|e| RecordError::Format {
+        line_charts(out, 3000, 600, &charts).map_err(|e| RecordError::Render {
             path: out.to_path_buf(),
-            message: e.to_string(),
+            message: e.message,
         })
     }
 }

@@ -191,6 +191,22 @@ pub struct DamBreakResult {
     /// `(τ, H)` per step (and at `t = 0`).
     #[serde(skip)]
     pub height: Vec<(f64, f64)>,
+    /// `(T, positions, pressures)` of the water (fluid and band particles) after the first step
+    /// at or past each `T` of [`PRESSURE_AT`] (drawn into `pressure.png` with the final state).
+    #[serde(skip)]
+    pub pressure: Vec<(f64, Vec<[f64; 2]>, Vec<f64>)>,
+}
+
+/// `T = t√(2g/a)` at which the water's pressure is kept for `pressure.png` (the final state is
+/// drawn as well).
+pub const PRESSURE_AT: [f64; 3] = [0.0, 1.0, 2.0];
+
+/// `(T, positions, pressures)` of the water now.
+fn water_pressure(sim: &Simulation<2, Walls<2>>, big_t: f64) -> (f64, Vec<[f64; 2]>, Vec<f64>) {
+    let p = &sim.particles;
+    let water = (0..p.len()).filter(|&i| p.role[i].is_real());
+    let (x, pressure) = water.map(|i| (p.x[i], p.p[i])).unzip();
+    (big_t, x, pressure)
 }
 
 /// The flat summary written to `summary.json`.
@@ -207,6 +223,15 @@ fn sample(res: &mut DamBreakResult, g: f64, t: f64, sim: &Simulation<2, Walls<2>
     let (z, eta) = front_and_height(sim);
     res.front.push((t * (2.0 * g).sqrt(), z));
     res.height.push((t * g.sqrt(), eta / 2.0));
+    let big_t = t * (2.0 * g).sqrt();
+    // not at t = 0, where no step has set the pressure yet
+    if t > 0.0
+        && PRESSURE_AT
+            .get(res.pressure.len())
+            .is_some_and(|&at| big_t >= at)
+    {
+        res.pressure.push(water_pressure(sim, big_t));
+    }
 }
 
 impl Scene<2> for DamBreak {
@@ -287,11 +312,11 @@ impl Scene<2> for DamBreak {
     #[cfg(feature = "cli")]
     fn write_plots(
         dir: &std::path::Path,
-        _cfg: &DamBreakConfig,
+        cfg: &DamBreakConfig,
         res: &DamBreakResult,
         sim: &Simulation<2, Walls<2>>,
     ) -> Result<(), crate::plot::PlotError> {
-        use crate::plot::{line_charts, Chart, Series};
+        use crate::plot::{line_charts, particle_panels, Chart, ParticleView, Series, Snapshot};
         let mm = crate::reference::martin_moyce();
         let dev = |d: Option<f64>| d.map_or("–".to_string(), |d| format!("{:.1} %", 100.0 * d));
         line_charts(
@@ -332,8 +357,26 @@ impl Scene<2> for DamBreak {
                 ),
             ],
         )?;
-        let _ = sim;
-        Ok(())
+        let mut shots = res.pressure.clone();
+        let end = sim.time * (2.0 * cfg.scene.gravity).sqrt();
+        if shots.last().is_none_or(|s| (s.0 - end).abs() > 1e-9) {
+            shots.push(water_pressure(sim, end));
+        }
+        let shots: Vec<Snapshot> = shots
+            .into_iter()
+            .map(|(t, x, value)| Snapshot {
+                title: format!("T = t √(2g/a) = {t:.2}"),
+                x,
+                value,
+            })
+            .collect();
+        // a few particles' pressure spikes would leave the rest in one colour
+        let note = "1–99 % quantiles\nover the panels\n(beyond: end colours)";
+        let mut view = ParticleView::fit(&shots, "pressure p", note);
+        view.quantile_scale(&shots, 0.01);
+        view.include([0.0, 0.0], [cfg.scene.length, 2.0]);
+        let title = format!("dam break, n = {}: pressure", res.n);
+        particle_panels(&dir.join("pressure.png"), &title, &shots, 2, 560, &view)
     }
 }
 
