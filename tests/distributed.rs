@@ -91,6 +91,7 @@ fn distributed_solves_equal_the_serial_one() {
         DdPreconditioner::Jacobi,
         DdPreconditioner::BlockAmg,
         DdPreconditioner::BlockAmgCoarse,
+        DdPreconditioner::Schwarz,
     ] {
         let one = check(cavity_sim, 1, pre);
         let four = check(cavity_sim, 4, pre);

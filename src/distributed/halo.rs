@@ -2,10 +2,10 @@
 //!
 //! Rank `r` owns the rows of its unknowns. Their columns are its own unknowns and a halo: the
 //! unknowns of other ranks within `h` of one of its own (the pattern of `K` is the neighbour
-//! graph). Because `K` is symmetric, what rank `q` needs from `r` is exactly what `r` needs from
-//! `q` turned around: `r` sends to `q` its own unknowns that have a column owned by `q`. Both
-//! sides list those unknowns in ascending global order, so a message is a bare array of values,
-//! and the plan needs no communication to set up.
+//! graph). Rank `r` sends to `q` its own unknowns that are columns of `q`'s rows, read from the
+//! (replicated) pattern of `q`'s rows — in a fully distributed setting one message of indices
+//! per neighbour and pattern. Both sides list those unknowns in ascending global order, so a
+//! message is a bare array of values.
 
 use crate::poisson::amg::{CsrMatrix, CsrRef};
 
@@ -79,10 +79,8 @@ impl LocalRows {
             ..Default::default()
         };
         let mut block_source = Vec::new();
-        let mut sends: Vec<(usize, Vec<u32>)> = Vec::new();
-        for (li, &u) in own.iter().enumerate() {
+        for &u in &own {
             let u = u as usize;
-            let mut to: Vec<usize> = Vec::new();
             for k in a.offsets[u]..a.offsets[u + 1] {
                 let c = a.cols[k];
                 let lc = local(c);
@@ -91,22 +89,33 @@ impl LocalRows {
                 if (lc as usize) < own.len() {
                     block.cols.push(lc);
                     block_source.push(cols.len() - 1);
-                } else {
-                    to.push(owner[c as usize] as usize);
                 }
             }
             offsets.push(cols.len());
             block.offsets.push(block.cols.len());
-            to.sort_unstable();
-            to.dedup();
-            for q in to {
-                match sends.iter_mut().find(|(r, _)| *r == q) {
-                    Some((_, list)) => list.push(li as u32),
-                    None => sends.push((q, vec![li as u32])),
-                }
+        }
+        // what each other rank needs from this one: the columns of its rows owned here, read
+        // from its rows (not from the transpose: a pair at `r = h` within rounding can be in
+        // one row and not in the other, so the pattern need not be exactly symmetric)
+        let mut wanted: Vec<(u32, u32)> = (0..owner.len())
+            .filter(|&u| owner[u] as usize != rank)
+            .flat_map(|u| {
+                a.cols[a.offsets[u]..a.offsets[u + 1]]
+                    .iter()
+                    .filter(|&&c| owner[c as usize] as usize == rank)
+                    .map(move |&c| (owner[u], c))
+            })
+            .collect();
+        wanted.sort_unstable();
+        wanted.dedup();
+        let mut sends: Vec<(usize, Vec<u32>)> = Vec::new();
+        for (q, c) in wanted {
+            let li = own.binary_search(&c).expect("own unknown") as u32;
+            match sends.last_mut() {
+                Some((r, list)) if *r == q as usize => list.push(li),
+                _ => sends.push((q as usize, vec![li])),
             }
         }
-        sends.sort_unstable_by_key(|(q, _)| *q);
         let mut recvs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
         for (k, &c) in halo.iter().enumerate() {
             let q = owner[c as usize] as usize;

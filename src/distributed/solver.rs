@@ -153,47 +153,47 @@ impl<C: Comm> DistributedPoisson<C> {
     /// Fills the halo part of `v` (own values first, then the halo of [`Self::rows`]) from
     /// the neighbour ranks: one message to and from each.
     pub fn exchange_values(&mut self, v: &mut [f64]) {
-        let m = self.rows.n_own();
-        let sends: Vec<(usize, Vec<f64>)> = self
-            .rows
-            .sends
-            .iter()
-            .map(|(q, l)| (*q, l.iter().map(|&i| v[i as usize]).collect()))
-            .collect();
-        let mut recvs: Vec<(usize, Vec<f64>)> = self
-            .rows
-            .recvs
-            .iter()
-            .map(|(q, r)| (*q, vec![0.0; r.len()]))
-            .collect();
-        self.count_messages(&sends);
-        self.comm.exchange(&sends, &mut recvs);
-        for ((_, range), (_, data)) in self.rows.recvs.iter().zip(&recvs) {
-            v[m + range.start..m + range.end].copy_from_slice(data);
-        }
+        self.halo_exchange(v, false);
     }
 
     /// The reverse of [`Self::exchange_values`]: the halo part of `v` is sent to its owners,
     /// which add what they receive to their own entries.
     fn exchange_add(&mut self, v: &mut [f64]) {
+        self.halo_exchange(v, true);
+    }
+
+    fn halo_exchange(&mut self, v: &mut [f64], reverse: bool) {
         let m = self.rows.n_own();
-        let sends: Vec<(usize, Vec<f64>)> = self
-            .rows
-            .recvs
-            .iter()
-            .map(|(q, r)| (*q, v[m + r.start..m + r.end].to_vec()))
-            .collect();
-        let mut recvs: Vec<(usize, Vec<f64>)> = self
-            .rows
-            .sends
-            .iter()
-            .map(|(q, l)| (*q, vec![0.0; l.len()]))
-            .collect();
+        let (own, halo) = (&self.rows.sends, &self.rows.recvs);
+        let pack_own = || {
+            own.iter()
+                .map(|(q, l)| (*q, l.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>()))
+        };
+        let pack_halo = || {
+            halo.iter()
+                .map(|(q, r)| (*q, v[m + r.start..m + r.end].to_vec()))
+        };
+        let (sends, mut recvs): (Vec<(usize, Vec<f64>)>, Vec<(usize, Vec<f64>)>) = if reverse {
+            (
+                pack_halo().collect(),
+                pack_own().map(|(q, l)| (q, vec![0.0; l.len()])).collect(),
+            )
+        } else {
+            (
+                pack_own().collect(),
+                pack_halo().map(|(q, l)| (q, vec![0.0; l.len()])).collect(),
+            )
+        };
         self.count_messages(&sends);
         self.comm.exchange(&sends, &mut recvs);
-        for ((_, list), (_, data)) in self.rows.sends.iter().zip(&recvs) {
-            for (&i, d) in list.iter().zip(data) {
-                v[i as usize] += d;
+        for (k, (_, data)) in recvs.iter().enumerate() {
+            if reverse {
+                for (&i, d) in self.rows.sends[k].1.iter().zip(data) {
+                    v[i as usize] += d;
+                }
+            } else {
+                let r = &self.rows.recvs[k].1;
+                v[m + r.start..m + r.end].copy_from_slice(data);
             }
         }
     }
