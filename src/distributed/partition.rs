@@ -12,7 +12,7 @@
 /// assert_eq!(rcb(&x, 1, 4), vec![0, 0, 1, 1, 2, 2, 3, 3]);
 /// ```
 pub fn rcb(points: &[f64], d: usize, parts: usize) -> Vec<u32> {
-    assert!(d > 0 && points.len() % d == 0 && parts > 0);
+    assert!(d > 0 && points.len().is_multiple_of(d) && parts > 0);
     let n = points.len() / d;
     let mut owner = vec![0u32; n];
     let mut idx: Vec<u32> = (0..n as u32).collect();

@@ -28,6 +28,9 @@ use crate::poisson::{ExternalSolve, ExternalSystem};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
+/// Messages of one exchange: `(rank, values)`.
+type Messages = Vec<(usize, Vec<f64>)>;
+
 /// The preconditioner of the distributed CG.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -173,7 +176,7 @@ impl<C: Comm> DistributedPoisson<C> {
             halo.iter()
                 .map(|(q, r)| (*q, v[m + r.start..m + r.end].to_vec()))
         };
-        let (sends, mut recvs): (Vec<(usize, Vec<f64>)>, Vec<(usize, Vec<f64>)>) = if reverse {
+        let (sends, mut recvs): (Messages, Messages) = if reverse {
             (
                 pack_halo().collect(),
                 pack_own().map(|(q, l)| (q, vec![0.0; l.len()])).collect(),
