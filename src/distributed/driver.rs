@@ -59,7 +59,7 @@ pub struct DistributedRun<C: Comm + 'static> {
 }
 
 impl<C: Comm + 'static> DistributedRun<C> {
-    /// A run over `comm`; `configure` may change the solver's settings.
+    /// A run over `comm` (the solver's settings through [`Self::solver`]).
     pub fn new(comm: C) -> Self {
         DistributedRun {
             solver: Arc::new(Mutex::new(DistributedPoisson::new(comm))),
