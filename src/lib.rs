@@ -52,6 +52,7 @@
 pub mod boundary;
 pub mod consistent;
 pub mod diagnostics;
+pub mod distributed;
 pub mod error;
 pub mod flow;
 pub mod geometry;

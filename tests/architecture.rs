@@ -18,6 +18,7 @@ const LAYERS: &[(&str, u32)] = &[
     ("poisson", 3),
     ("pair_weights", 3),
     ("projection", 4),
+    ("distributed", 5),
     ("setup", 4),
     ("time", 5),
     ("flow", 5),

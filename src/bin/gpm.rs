@@ -60,6 +60,9 @@ const MAX_CONFIG_BYTES: u64 = 16 << 20;
 
 /// SIGINT, SIGTERM and SIGHUP: the first stops a run after its current step (`gpm run`) or
 /// exits at once (anything else); a second exits at once. Exit status 128 + the signal.
+#[path = "gpm/ranks.rs"]
+mod ranks;
+
 mod signals {
     use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 
@@ -452,6 +455,30 @@ impl SceneVisitor for RunScene {
         cfg.validate()
             .with_context(|| format!("invalid {name} configuration"))?;
         check_estimates::<D, S>(&cfg, a.force)?;
+        // under mpirun: the Poisson solve over the ranks, rank 0 alone writes
+        let ranks = std::cell::RefCell::new(ranks::start(name)?);
+        let rank = ranks.borrow().as_ref().map_or(0, |r| r.rank());
+        let setup = |sim: &mut gpm::flow::Simulation<D, S::Boundary>| {
+            if let Some(r) = ranks.borrow_mut().as_mut() {
+                r.install(sim);
+            }
+        };
+        let t_end = cfg.t_end;
+        let step_observer = |pb: &ProgressBar, rep: &gpm::flow::FlowReport, sim: &_| {
+            let flow = observe(pb, rep, t_end);
+            Ok(match ranks.borrow_mut().as_mut() {
+                Some(r) => r.observe(rep, sim, flow),
+                None => flow,
+            })
+        };
+        let mpi_summary = || ranks.borrow_mut().as_mut().map(|r| r.finish()).transpose();
+        if rank != 0 {
+            let pb = ProgressBar::hidden();
+            let run = gpm::scene::run_scene(&cfg, setup, |rep, sim| step_observer(&pb, rep, sim));
+            mpi_summary()?;
+            run.with_context(|| format!("{name} run failed on rank {rank}"))?;
+            return Ok(ExitCode::SUCCESS);
+        }
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
         let path = a.out.join("run.mcap");
         let options = RecorderOptions {
@@ -461,16 +488,16 @@ impl SceneVisitor for RunScene {
         };
         let bar_template = "{spinner} [{elapsed_precise}] [{bar:40}] {percent:>3}% {msg}";
         let pb = progress_bar(1000, a.quiet, bar_template);
-        let t_end = cfg.t_end;
         let done = run_recorded(
             &cfg,
             &path,
             options,
             &cfg.record_header(),
-            |_| {},
-            |rep, _| Ok(observe(&pb, rep, t_end)),
+            setup,
+            |rep, sim| step_observer(&pb, rep, sim),
         )?;
         pb.finish_and_clear();
+        let mpi = mpi_summary()?;
         // the file is finished (or its error known) before the run's outcome is reported
         let record = match done.record {
             Ok(s) => {
@@ -501,8 +528,11 @@ impl SceneVisitor for RunScene {
                     }
                     return Ok(ExitCode::from((128 + sig).clamp(0, 255) as u8));
                 }
-                let out =
+                let mut out =
                     serde_json::json!({ "scene": name, "result": run.result, "record": record });
+                if let Some(m) = mpi {
+                    out["mpi"] = m;
+                }
                 outln!("{}", serde_json::to_string_pretty(&out)?)?;
                 Ok(if record.is_some() || a.record == RecordLevel::None {
                     ExitCode::SUCCESS

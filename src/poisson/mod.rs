@@ -259,9 +259,39 @@ pub struct SolveInfo {
     pub amg_setup_seconds: f64,
 }
 
+/// The assembled system handed to an [`ExternalSolve`]: `K x = b` over the unknowns of `a`,
+/// singular with the constants on each set of `null` (floating components, right side already
+/// projected), `positions` the unknowns' coordinates (`dim` per unknown).
+#[derive(Debug)]
+pub struct ExternalSystem<'a> {
+    /// The assembled matrix (full symmetric CSR).
+    pub a: &'a Assembly,
+    /// Right side `ω∘b`.
+    pub b: &'a [f64],
+    /// Initial guess on entry (warm start or zero), solution on return.
+    pub x: &'a mut [f64],
+    /// Unknowns of each floating component.
+    pub null: &'a [&'a [u32]],
+    /// Coordinates of the unknowns, `dim` numbers each.
+    pub positions: &'a [f64],
+    /// Dimension.
+    pub dim: usize,
+    /// Tolerances and iteration limit.
+    pub params: &'a SolveParams,
+}
+
+/// A solver that replaces the built-in ones for the Poisson system (the domain-decomposed CG
+/// of [`crate::distributed`]). It reports as [`SolverKind::Cg`] with its iterations.
+pub trait ExternalSolve: Send + Sync + std::fmt::Debug {
+    /// Solves the system in place.
+    fn solve(&mut self, sys: ExternalSystem<'_>) -> Result<iterative::CgInfo, SolveError>;
+}
+
 /// Reusable solver state: matrix pattern and values, Cholesky caches, AMG hierarchy, scratch.
 #[derive(Debug, Default)]
 pub struct PoissonSolver {
+    /// When set, every [`Self::solve`] goes to this solver instead of the built-in ones.
+    pub external: Option<Box<dyn ExternalSolve>>,
     /// The assembled matrix.
     pub assembly: Assembly,
     /// The direct solver's caches.
@@ -310,7 +340,7 @@ impl PoissonSolver {
     ) -> Result<(), SolveError> {
         self.ahead = None;
         self.assemble(nl, vol, role, params)?;
-        if self.kind::<D>(params) == SolverKind::Cholesky {
+        if self.external.is_none() && self.kind::<D>(params) == SolverKind::Cholesky {
             let (floating, members) = floating_members(&self.assembly, components);
             let pinned = pinned_unknowns(&members, &floating);
             let r = self.direct.factor(
@@ -474,88 +504,119 @@ impl PoissonSolver {
         }
         info.assemble_seconds = t0.elapsed().as_secs_f64();
 
-        let kind = self.kind::<D>(params);
+        let kind = match self.external {
+            Some(_) => SolverKind::Cg,
+            None => self.kind::<D>(params),
+        };
         info.solver = kind;
         self.x.resize(n, 0.0);
-        match kind {
-            SolverKind::Cholesky => {
-                let pinned = pinned_unknowns(&members, &floating);
-                let mut r = self.direct.solve(
-                    a,
-                    &pinned,
-                    &self.b,
-                    &mut self.x,
-                    params.reuse_symbolic,
-                    params.reuse_numeric,
-                )?;
-                match ahead {
-                    // the factor prepared ahead was the one used: report its work
-                    Some(f) if r.symbolic && r.numeric => {
-                        r.symbolic = f.symbolic;
-                        r.numeric = f.numeric;
-                        r.symbolic_seconds = f.symbolic_seconds;
-                        r.numeric_seconds = f.numeric_seconds;
-                    }
-                    _ => count_refactorisation(&mut self.auto_factorisations, params, &r),
-                }
-                info.reused_symbolic = r.symbolic;
-                info.reused_numeric = r.numeric;
-                info.symbolic_seconds = r.symbolic_seconds;
-                info.numeric_seconds = r.numeric_seconds;
-                info.solve_seconds = r.solve_seconds;
-                let (abs, rel) = residual(a, &self.b, &self.x);
-                info.abs_residual = abs;
-                info.rel_residual = rel;
-            }
-            SolverKind::Cg | SolverKind::Amg | SolverKind::Auto => {
-                for (u, &p) in a.particle.iter().enumerate() {
-                    self.x[u] = if params.warm_start && phi[p as usize].is_finite() {
-                        phi[p as usize]
-                    } else {
-                        0.0
-                    };
-                }
-                let r = if kind == SolverKind::Amg {
-                    let reuse = params.amg_reuse();
-                    info.amg_setup = self.amg.prepare(a, reuse);
-                    let h = self.amg.hierarchy().expect("prepared hierarchy");
-                    info.amg_levels = h.stats().levels();
-                    info.amg_operator_complexity = h.stats().operator_complexity();
-                    if matches!(info.amg_setup, AmgSetup::Rebuilt | AmgSetup::Refreshed) {
-                        info.amg_setup_seconds = h.stats().setup_seconds;
-                    }
-                    let t = Instant::now();
-                    let null: Vec<&[u32]> =
-                        floating.iter().map(|&c| members[c].as_slice()).collect();
-                    let r = iterative::pcg_with_null(
-                        a,
-                        &self.b,
-                        &mut self.x,
-                        params.rel_tol,
-                        params.abs_tol,
-                        params.max_iters,
-                        &mut self.amg.preconditioner(a),
-                        &null,
-                    )?;
-                    info.solve_seconds = t.elapsed().as_secs_f64();
-                    self.amg.record(&r, reuse);
-                    r
+        if let Some(ext) = self.external.as_mut() {
+            for (u, &p) in a.particle.iter().enumerate() {
+                let v = phi[p as usize];
+                self.x[u] = if params.warm_start && v.is_finite() {
+                    v
                 } else {
-                    let t = Instant::now();
-                    let r = iterative::pcg(
+                    0.0
+                };
+            }
+            let xs = nl.search_positions();
+            let positions: Vec<f64> = a.particle.iter().flat_map(|&p| xs[p as usize]).collect();
+            let null: Vec<&[u32]> = floating.iter().map(|&c| members[c].as_slice()).collect();
+            let t = Instant::now();
+            let r = ext.solve(ExternalSystem {
+                a,
+                b: &self.b,
+                x: &mut self.x,
+                null: &null,
+                positions: &positions,
+                dim: D,
+                params,
+            })?;
+            info.solve_seconds = t.elapsed().as_secs_f64();
+            info.iters = r.iters;
+            info.abs_residual = r.abs_residual;
+            info.rel_residual = r.rel_residual;
+        } else {
+            match kind {
+                SolverKind::Cholesky => {
+                    let pinned = pinned_unknowns(&members, &floating);
+                    let mut r = self.direct.solve(
                         a,
+                        &pinned,
                         &self.b,
                         &mut self.x,
-                        params.rel_tol,
-                        params.abs_tol,
-                        params.max_iters,
+                        params.reuse_symbolic,
+                        params.reuse_numeric,
                     )?;
-                    info.solve_seconds = t.elapsed().as_secs_f64();
-                    r
-                };
-                info.iters = r.iters;
-                info.abs_residual = r.abs_residual;
-                info.rel_residual = r.rel_residual;
+                    match ahead {
+                        // the factor prepared ahead was the one used: report its work
+                        Some(f) if r.symbolic && r.numeric => {
+                            r.symbolic = f.symbolic;
+                            r.numeric = f.numeric;
+                            r.symbolic_seconds = f.symbolic_seconds;
+                            r.numeric_seconds = f.numeric_seconds;
+                        }
+                        _ => count_refactorisation(&mut self.auto_factorisations, params, &r),
+                    }
+                    info.reused_symbolic = r.symbolic;
+                    info.reused_numeric = r.numeric;
+                    info.symbolic_seconds = r.symbolic_seconds;
+                    info.numeric_seconds = r.numeric_seconds;
+                    info.solve_seconds = r.solve_seconds;
+                    let (abs, rel) = residual(a, &self.b, &self.x);
+                    info.abs_residual = abs;
+                    info.rel_residual = rel;
+                }
+                SolverKind::Cg | SolverKind::Amg | SolverKind::Auto => {
+                    for (u, &p) in a.particle.iter().enumerate() {
+                        self.x[u] = if params.warm_start && phi[p as usize].is_finite() {
+                            phi[p as usize]
+                        } else {
+                            0.0
+                        };
+                    }
+                    let r = if kind == SolverKind::Amg {
+                        let reuse = params.amg_reuse();
+                        info.amg_setup = self.amg.prepare(a, reuse);
+                        let h = self.amg.hierarchy().expect("prepared hierarchy");
+                        info.amg_levels = h.stats().levels();
+                        info.amg_operator_complexity = h.stats().operator_complexity();
+                        if matches!(info.amg_setup, AmgSetup::Rebuilt | AmgSetup::Refreshed) {
+                            info.amg_setup_seconds = h.stats().setup_seconds;
+                        }
+                        let t = Instant::now();
+                        let null: Vec<&[u32]> =
+                            floating.iter().map(|&c| members[c].as_slice()).collect();
+                        let r = iterative::pcg_with_null(
+                            a,
+                            &self.b,
+                            &mut self.x,
+                            params.rel_tol,
+                            params.abs_tol,
+                            params.max_iters,
+                            &mut self.amg.preconditioner(a),
+                            &null,
+                        )?;
+                        info.solve_seconds = t.elapsed().as_secs_f64();
+                        self.amg.record(&r, reuse);
+                        r
+                    } else {
+                        let t = Instant::now();
+                        let r = iterative::pcg(
+                            a,
+                            &self.b,
+                            &mut self.x,
+                            params.rel_tol,
+                            params.abs_tol,
+                            params.max_iters,
+                        )?;
+                        info.solve_seconds = t.elapsed().as_secs_f64();
+                        r
+                    };
+                    info.iters = r.iters;
+                    info.abs_residual = r.abs_residual;
+                    info.rel_residual = r.rel_residual;
+                }
             }
         }
         // fix the constant of each floating component: zero ω-weighted mean

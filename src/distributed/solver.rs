@@ -1,0 +1,611 @@
+//! The distributed preconditioned CG of the Poisson system.
+//!
+//! Each rank owns the rows of its unknowns ([`LocalRows`]); one iteration is
+//!
+//! 1. `z = M r` ([`DdPreconditioner`]): Jacobi, or the two-level
+//!    `M = Q + (I − QA) B (I − AQ)` with `B` one V-cycle of the crate's AMG on the rank's
+//!    own–own block (or, `Schwarz`, on its own and halo rows) and `Q = Z A_c⁻¹ Zᵀ` on
+//!    piecewise-constant aggregates (`A_c = Zᵀ K Z`, replicated and factorised on every rank):
+//!    one halo exchange (for `A w`) and reduction 1, `[r·w, Σ_C w, Zᵀ A w]`; `z` is projected
+//!    to zero mean on each floating component;
+//! 2. `p = z + β p`; halo exchange of `p` (one message to each neighbour rank); `q = K p`;
+//!    reduction 2, `p·q`;
+//! 3. `x += α p`, `r −= α q`; reduction 3, `[r·r, Σ_C r, Zᵀ r]`: `r` projected to zero mean
+//!    on each floating component (the constants are the null space), `Zᵀ r` kept for step 1.
+//!
+//! Two neighbour exchanges (four with `Schwarz`) and three reductions per iteration. Every
+//! reduction adds the ranks' partial sums in rank order ([`Comm::sum`]), so all ranks hold the
+//! same bits and a run is reproducible. At the end the own parts of `x` are gathered to every
+//! rank (the driver keeps the particle state on every rank, see [`super`]).
+
+use super::comm::Comm;
+use super::halo::LocalRows;
+use super::partition::rcb;
+use crate::error::SolveError;
+use crate::poisson::amg::{Amg, AmgParams, CsrRef};
+use crate::poisson::iterative::CgInfo;
+use crate::poisson::{ExternalSolve, ExternalSystem};
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// Messages of one exchange: `(rank, values)`.
+type Messages = Vec<(usize, Vec<f64>)>;
+
+/// The preconditioner of the distributed CG.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DdPreconditioner {
+    /// The diagonal: the same iterations at any number of ranks, but many of them.
+    Jacobi,
+    /// Block Jacobi: one AMG V-cycle of the rank's own–own block.
+    BlockAmg,
+    /// Block AMG plus the coarse correction on aggregates (the fewest iterations measured at
+    /// 4 ranks, see `docs/mpi.md`).
+    #[default]
+    BlockAmgCoarse,
+    /// Additive Schwarz with overlap `h` (one V-cycle of the AMG of the own and halo rows,
+    /// the overlap weighted `1/√k` for an unknown held by `k` ranks, the halo's results added
+    /// back to their owners) plus the coarse correction.
+    Schwarz,
+}
+
+/// Message counts and volumes of one rank (cumulative; [`DistributedPoisson::traffic`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Traffic {
+    /// Point-to-point messages sent (halo exchanges).
+    pub messages: u64,
+    /// Bytes in them.
+    pub bytes: u64,
+    /// Global reductions (each an allgather of the partial sums).
+    pub reductions: u64,
+    /// `f64` values contributed to reductions.
+    pub reduced_values: u64,
+    /// Bytes this rank contributed to gathers of the solution (allgather of own values).
+    pub gathered_bytes: u64,
+    /// Solves.
+    pub solves: u64,
+    /// CG iterations.
+    pub iterations: u64,
+}
+
+/// The distributed Poisson solver: plug it into [`crate::poisson::PoissonSolver::external`].
+#[derive(Debug)]
+pub struct DistributedPoisson<C: Comm> {
+    comm: C,
+    /// Preconditioner (default block AMG with the coarse correction).
+    pub preconditioner: DdPreconditioner,
+    /// Target unknowns per coarse aggregate (default 16: at 4 ranks 19 iterations against 23
+    /// with 64 for Taylor–Green n = 128; the coarse problem has `N/16` unknowns, which suits
+    /// this machine's sizes, not 10⁶ unknowns per rank, see `docs/mpi.md`).
+    pub aggregate_size: usize,
+    pattern: Option<u64>,
+    owner: Vec<u32>,
+    rows: LocalRows,
+    amg: Option<Amg>,
+    coarse: Option<Coarse>,
+    /// Diagonal of the own rows (Jacobi).
+    diag: Vec<f64>,
+    /// Schwarz: `1/√k` for an unknown held by `k` ranks (own and halo), so that the overlap
+    /// is not counted several times: `B = Σ_r R_rᵀ D_r A_r⁻¹ D_r R_r`.
+    overlap_weight: Vec<f64>,
+    /// The own rows' values the preconditioner was built for.
+    built_for: Option<(DdPreconditioner, usize, Vec<f64>)>,
+    null_key: Vec<Vec<u32>>,
+    traffic: Traffic,
+    /// Iterations of the last solve.
+    pub last_iters: usize,
+}
+
+#[derive(Debug)]
+struct Coarse {
+    /// Aggregate (global coarse index) of each own and halo unknown (local numbering).
+    agg: Vec<u32>,
+    n: usize,
+    chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    /// Per floating component: its members in each aggregate (`Zᵀ 1_C`).
+    comp_counts: Vec<Vec<f64>>,
+}
+
+impl<C: Comm> DistributedPoisson<C> {
+    /// A solver over `comm` with the default preconditioner.
+    pub fn new(comm: C) -> Self {
+        DistributedPoisson {
+            comm,
+            preconditioner: DdPreconditioner::default(),
+            aggregate_size: 16,
+            pattern: None,
+            owner: Vec::new(),
+            rows: LocalRows::default(),
+            amg: None,
+            coarse: None,
+            diag: Vec::new(),
+            overlap_weight: Vec::new(),
+            built_for: None,
+            null_key: Vec::new(),
+            traffic: Traffic::default(),
+            last_iters: 0,
+        }
+    }
+
+    /// The communicator.
+    pub fn comm(&self) -> &C {
+        &self.comm
+    }
+
+    /// Message counts and volumes so far.
+    pub fn traffic(&self) -> Traffic {
+        self.traffic
+    }
+
+    /// Owner rank of each unknown of the last solve.
+    pub fn owner(&self) -> &[u32] {
+        &self.owner
+    }
+
+    /// This rank's rows of the last solve.
+    pub fn rows(&self) -> &LocalRows {
+        &self.rows
+    }
+
+    fn reduce(&mut self, v: &[f64]) -> Vec<f64> {
+        self.traffic.reductions += 1;
+        self.traffic.reduced_values += v.len() as u64;
+        self.comm.sum(v)
+    }
+
+    /// Fills the halo part of `v` (own values first, then the halo of [`Self::rows`]) from
+    /// the neighbour ranks: one message to and from each.
+    pub fn exchange_values(&mut self, v: &mut [f64]) {
+        self.halo_exchange(v, false);
+    }
+
+    /// The reverse of [`Self::exchange_values`]: the halo part of `v` is sent to its owners,
+    /// which add what they receive to their own entries.
+    fn exchange_add(&mut self, v: &mut [f64]) {
+        self.halo_exchange(v, true);
+    }
+
+    fn halo_exchange(&mut self, v: &mut [f64], reverse: bool) {
+        let m = self.rows.n_own();
+        let (own, halo) = (&self.rows.sends, &self.rows.recvs);
+        let pack_own = || {
+            own.iter()
+                .map(|(q, l)| (*q, l.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>()))
+        };
+        let pack_halo = || {
+            halo.iter()
+                .map(|(q, r)| (*q, v[m + r.start..m + r.end].to_vec()))
+        };
+        let (sends, mut recvs): (Messages, Messages) = if reverse {
+            (
+                pack_halo().collect(),
+                pack_own().map(|(q, l)| (q, vec![0.0; l.len()])).collect(),
+            )
+        } else {
+            (
+                pack_own().collect(),
+                pack_halo().map(|(q, l)| (q, vec![0.0; l.len()])).collect(),
+            )
+        };
+        self.count_messages(&sends);
+        self.comm.exchange(&sends, &mut recvs);
+        for (k, (_, data)) in recvs.iter().enumerate() {
+            if reverse {
+                for (&i, d) in self.rows.sends[k].1.iter().zip(data) {
+                    v[i as usize] += d;
+                }
+            } else {
+                let r = &self.rows.recvs[k].1;
+                v[m + r.start..m + r.end].copy_from_slice(data);
+            }
+        }
+    }
+
+    fn count_messages(&mut self, sends: &[(usize, Vec<f64>)]) {
+        self.traffic.messages += sends.len() as u64;
+        self.traffic.bytes += 8 * sends.iter().map(|s| s.1.len() as u64).sum::<u64>();
+    }
+
+    /// Partition, rows, halo plan and preconditioner for a new pattern; new values only
+    /// refill the rows and rebuild the preconditioner.
+    fn setup(&mut self, sys: &ExternalSystem<'_>, null: &[Vec<u32>]) {
+        let a = CsrRef::from(sys.a);
+        let pattern = sys.a.pattern_id();
+        if self.pattern != Some(pattern) || self.owner.len() != sys.a.n() {
+            self.owner = rcb(sys.positions, sys.dim, self.comm.size());
+            self.rows = LocalRows::new(a, &self.owner, self.comm.rank());
+            self.pattern = Some(pattern);
+            self.built_for = None;
+        } else {
+            self.rows.refill(&sys.a.values);
+        }
+        // the same matrix and settings (fixed particles): keep the preconditioner
+        let key = (
+            self.preconditioner,
+            self.aggregate_size,
+            self.rows.values.clone(),
+        );
+        if self.built_for.as_ref() == Some(&key) && self.null_key == null {
+            return;
+        }
+        self.built_for = Some(key);
+        self.null_key = null.to_vec();
+        self.diag = self.rows.block.view().diagonal();
+        if self.preconditioner == DdPreconditioner::Schwarz {
+            let m = self.rows.n_own();
+            let mut k = vec![1.0; m + self.rows.halo.len()];
+            for (_, list) in &self.rows.sends {
+                for &i in list {
+                    k[i as usize] += 1.0;
+                }
+            }
+            self.exchange_values(&mut k);
+            self.overlap_weight = k.iter().map(|k| 1.0 / k.sqrt()).collect();
+        }
+        self.amg = match self.preconditioner {
+            DdPreconditioner::Jacobi => None,
+            DdPreconditioner::Schwarz => {
+                Some(Amg::build(self.rows.ext.view(), AmgParams::default()))
+            }
+            _ => Some(Amg::build(self.rows.block.view(), AmgParams::default())),
+        };
+        self.coarse = match self.preconditioner {
+            DdPreconditioner::BlockAmgCoarse | DdPreconditioner::Schwarz => {
+                Some(self.coarse_space(sys, null))
+            }
+            _ => None,
+        };
+    }
+
+    /// Aggregates: every rank's own unknowns cut by RCB into parts of about
+    /// `aggregate_size` (computed alike on every rank from the replicated positions);
+    /// `A_c = Zᵀ K Z` summed over the ranks' rows, plus `σ 1 1ᵀ` on each floating component's
+    /// aggregates (its constants are the null space), factorised by dense Cholesky.
+    fn coarse_space(&mut self, sys: &ExternalSystem<'_>, null: &[Vec<u32>]) -> Coarse {
+        let p = self.comm.size();
+        let d = sys.dim;
+        let mut global_agg = vec![0u32; self.owner.len()];
+        let mut first = 0usize;
+        for r in 0..p {
+            let members: Vec<u32> = (0..self.owner.len() as u32)
+                .filter(|&u| self.owner[u as usize] as usize == r)
+                .collect();
+            let parts = members.len().div_ceil(self.aggregate_size.max(1)).max(1);
+            let pts: Vec<f64> = members
+                .iter()
+                .flat_map(|&u| sys.positions[u as usize * d..(u as usize + 1) * d].to_vec())
+                .collect();
+            for (k, part) in rcb(&pts, d, parts).into_iter().enumerate() {
+                global_agg[members[k] as usize] = (first + part as usize) as u32;
+            }
+            first += parts;
+        }
+        let nc = first;
+        let agg: Vec<u32> = self
+            .rows
+            .own
+            .iter()
+            .chain(&self.rows.halo)
+            .map(|&g| global_agg[g as usize])
+            .collect();
+        let mut ac = vec![0.0; nc * nc];
+        for i in 0..self.rows.n_own() {
+            let ai = agg[i] as usize;
+            for k in self.rows.offsets[i]..self.rows.offsets[i + 1] {
+                ac[ai * nc + agg[self.rows.cols[k] as usize] as usize] += self.rows.values[k];
+            }
+        }
+        let mut ac = self.reduce(&ac);
+        let sigma = (0..nc).map(|a| ac[a * nc + a]).sum::<f64>() / nc as f64;
+        let mut comp_counts = Vec::new();
+        for comp in null {
+            let mut on = vec![false; nc];
+            let mut count = vec![0.0; nc];
+            for &u in comp {
+                on[global_agg[u as usize] as usize] = true;
+                count[global_agg[u as usize] as usize] += 1.0;
+            }
+            comp_counts.push(count);
+            for a in (0..nc).filter(|&a| on[a]) {
+                for b in (0..nc).filter(|&b| on[b]) {
+                    ac[a * nc + b] += sigma;
+                }
+            }
+        }
+        let chol = DMatrix::from_row_slice(nc, nc, &ac)
+            .cholesky()
+            .expect("the coarse matrix is positive definite once its null space is fixed");
+        Coarse {
+            agg,
+            n: nc,
+            chol,
+            comp_counts,
+        }
+    }
+
+    /// `w = B s` on the own rows: one V-cycle of the own–own block, or the diagonal; for
+    /// Schwarz, `s`'s halo is exchanged, the V-cycle runs over own and halo rows, and the
+    /// halo's part goes back to its owners (two exchanges).
+    fn local(&mut self, s: &[f64], w: &mut [f64]) {
+        let m = self.rows.n_own();
+        if self.preconditioner == DdPreconditioner::Schwarz {
+            let nh = self.rows.halo.len();
+            let mut se = vec![0.0; m + nh];
+            se[..m].copy_from_slice(&s[..m]);
+            self.exchange_values(&mut se);
+            for (v, d) in se.iter_mut().zip(&self.overlap_weight) {
+                *v *= d;
+            }
+            let mut we = vec![0.0; m + nh];
+            if let Some(amg) = &mut self.amg {
+                amg.vcycle(self.rows.ext.view(), &se, &mut we);
+            }
+            for (v, d) in we.iter_mut().zip(&self.overlap_weight) {
+                *v *= d;
+            }
+            self.exchange_add(&mut we);
+            w[..m].copy_from_slice(&we[..m]);
+            return;
+        }
+        match &mut self.amg {
+            Some(amg) => amg.vcycle(self.rows.block.view(), &s[..m], &mut w[..m]),
+            None => {
+                for i in 0..m {
+                    w[i] = s[i] / self.diag[i];
+                }
+            }
+        }
+    }
+
+    /// `z = M r` projected to zero mean on each floating component, returning `r·z` (one
+    /// reduction). Without the coarse space `M = B`; with it the symmetric two-level
+    /// `M = Q + (I − QA) B (I − AQ)`, `Q = Z A_c⁻¹ Zᵀ`: `y₁ = A_c⁻¹ Zᵀr` (`zr`, reduced with
+    /// the residual), `w = B (r − A Z y₁)` (`Z y₁` is known on the halo: no exchange),
+    /// one halo exchange of `w` for `t = A w`, one reduction of `[r·w, Σ_C w, Zᵀ t]`,
+    /// `y₂ = A_c⁻¹ Zᵀ t`, and `z = w + Z (y₁ − y₂)`.
+    fn precondition(
+        &mut self,
+        r: &[f64],
+        zr: &[f64],
+        comps: &[(Vec<usize>, f64)],
+        z: &mut [f64],
+    ) -> f64 {
+        let m = self.rows.n_own();
+        let Some(c) = self.coarse.take() else {
+            self.local(r, z);
+            let mut v = vec![dot(r, &z[..m])];
+            v.extend(comp_sums(&z[..m], comps));
+            let s = self.reduce(&v);
+            project_means(&mut z[..m], comps, &s[1..]);
+            // r·(z − μ) = r·z: r sums to zero on each component
+            return s[0];
+        };
+        let y1 = c.chol.solve(&DVector::from_column_slice(zr));
+        let mut s = vec![0.0; m];
+        for i in 0..m {
+            let mut az = 0.0;
+            for k in self.rows.offsets[i]..self.rows.offsets[i + 1] {
+                az += self.rows.values[k] * y1[c.agg[self.rows.cols[k] as usize] as usize];
+            }
+            s[i] = r[i] - az;
+        }
+        let mut w = vec![0.0; m + self.rows.halo.len()];
+        self.local(&s, &mut w);
+        self.exchange_values(&mut w);
+        let mut t = vec![0.0; m];
+        self.rows.spmv(&w, &mut t);
+        let mut v = vec![dot(r, &w[..m])];
+        v.extend(comp_sums(&w[..m], comps));
+        let split = v.len();
+        let mut zt = vec![0.0; c.n];
+        for i in 0..m {
+            zt[c.agg[i] as usize] += t[i];
+        }
+        v.extend_from_slice(&zt);
+        let red = self.reduce(&v);
+        let y2 = c.chol.solve(&DVector::from_column_slice(&red[split..]));
+        let dy: Vec<f64> = (0..c.n).map(|a| y1[a] - y2[a]).collect();
+        for i in 0..m {
+            z[i] = w[i] + dy[c.agg[i] as usize];
+        }
+        let zr_dy: f64 = zr.iter().zip(&dy).map(|(a, b)| a * b).sum();
+        let sums: Vec<f64> = c
+            .comp_counts
+            .iter()
+            .zip(&red[1..split])
+            .map(|(count, sw)| sw + count.iter().zip(&dy).map(|(n, d)| n * d).sum::<f64>())
+            .collect();
+        project_means(&mut z[..m], comps, &sums);
+        self.coarse = Some(c);
+        red[0] + zr_dy
+    }
+
+    fn coarse_restrict(&self, r: &[f64], out: &mut Vec<f64>) {
+        if let Some(c) = &self.coarse {
+            out.clear();
+            out.resize(c.n, 0.0);
+            for i in 0..self.rows.n_own() {
+                out[c.agg[i] as usize] += r[i];
+            }
+        }
+    }
+}
+
+/// Per floating component: own members (local indices) and the global member count.
+fn local_null(rows: &LocalRows, null: &[&[u32]]) -> Vec<(Vec<usize>, f64)> {
+    null.iter()
+        .map(|comp| {
+            let own: Vec<usize> = comp
+                .iter()
+                .filter_map(|g| rows.own.binary_search(g).ok())
+                .collect();
+            (own, comp.len() as f64)
+        })
+        .collect()
+}
+
+impl<C: Comm> ExternalSolve for DistributedPoisson<C> {
+    fn solve(&mut self, sys: ExternalSystem<'_>) -> Result<CgInfo, SolveError> {
+        let null_owned: Vec<Vec<u32>> = sys.null.iter().map(|c| c.to_vec()).collect();
+        self.setup(&sys, &null_owned);
+        let params = sys.params;
+        let m = self.rows.n_own();
+        let nh = self.rows.halo.len();
+        let comps = local_null(&self.rows, sys.null);
+        let b: Vec<f64> = self.rows.own.iter().map(|&g| sys.b[g as usize]).collect();
+        let mut x: Vec<f64> = self.rows.own.iter().map(|&g| sys.x[g as usize]).collect();
+        x.resize(m + nh, 0.0);
+        self.traffic.solves += 1;
+
+        // r = b − K x (x's halo first), projected; ‖b‖, ‖r‖ and Zᵀ r in one reduction
+        self.exchange_values(&mut x);
+        let mut r = vec![0.0; m];
+        self.rows.spmv(&x, &mut r);
+        for i in 0..m {
+            r[i] = b[i] - r[i];
+        }
+        let mut zr = Vec::new();
+        let (bb, rr) = self.reduce_residual(&mut r, &comps, &mut zr, Some(dot(&b, &b)));
+        let (bnorm, mut rnorm) = (bb.sqrt(), rr.sqrt());
+        if bnorm == 0.0 {
+            for g in sys.x.iter_mut() {
+                *g = 0.0;
+            }
+            return Ok(CgInfo::default());
+        }
+        let tol = params.abs_tol.max(params.rel_tol * bnorm);
+        let r0 = rnorm;
+        let mut z = vec![0.0; m];
+        let mut p = vec![0.0; m + nh];
+        let mut q = vec![0.0; m];
+        let mut rz = 0.0;
+        let mut iters = 0;
+        while rnorm > tol {
+            if iters >= params.max_iters {
+                self.gather(&x[..m], sys.x);
+                return Err(SolveError::NoConvergence {
+                    iters,
+                    abs_residual: rnorm,
+                    rel_residual: rnorm / bnorm,
+                });
+            }
+            let rz_new = self.precondition(&r, &zr, &comps, &mut z);
+            if rz_new.is_nan() || rz_new <= 0.0 {
+                return Err(SolveError::Backend(format!(
+                    "distributed CG: r·Br = {rz_new:e} ≤ 0 at iteration {iters}"
+                )));
+            }
+            let beta = if iters == 0 { 0.0 } else { rz_new / rz };
+            rz = rz_new;
+            for i in 0..m {
+                p[i] = z[i] + beta * p[i];
+            }
+            self.exchange_values(&mut p);
+            self.rows.spmv(&p, &mut q);
+            let pq = self.reduce(&[dot(&p[..m], &q)])[0];
+            if pq.is_nan() || pq <= 0.0 {
+                return Err(SolveError::Backend(format!(
+                    "distributed CG: p·Kp = {pq:e} ≤ 0 at iteration {iters}"
+                )));
+            }
+            let alpha = rz / pq;
+            for i in 0..m {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * q[i];
+            }
+            rnorm = self.reduce_residual(&mut r, &comps, &mut zr, None).1.sqrt();
+            iters += 1;
+            if !rnorm.is_finite() {
+                return Err(SolveError::Backend(format!(
+                    "distributed CG: residual became {rnorm} at iteration {iters}"
+                )));
+            }
+        }
+        self.traffic.iterations += iters as u64;
+        self.last_iters = iters;
+        // true residual ‖b − K x‖ (its halo exchange and reduction are counted too)
+        self.exchange_values(&mut x);
+        self.rows.spmv(&x, &mut q);
+        let tr: f64 = (0..m).map(|i| (b[i] - q[i]).powi(2)).sum();
+        let true_r = self.reduce(&[tr])[0].sqrt();
+        self.gather(&x[..m], sys.x);
+        Ok(CgInfo {
+            iters,
+            abs_residual: true_r,
+            rel_residual: true_r / bnorm,
+            initial_residual: r0,
+            final_residual: rnorm,
+        })
+    }
+}
+
+impl<C: Comm> DistributedPoisson<C> {
+    /// One reduction of `[extra?, r·r, Σ_C r per floating component, Zᵀ r]`; then `r` loses
+    /// each component's mean (the constants are the null space), `zr` receives the projected
+    /// `Zᵀ r`, and the projected `|r|²` follows from `|r − μ1|² = |r|² − n μ²` per component.
+    /// Returns `(extra, |r|²)`.
+    fn reduce_residual(
+        &mut self,
+        r: &mut [f64],
+        comps: &[(Vec<usize>, f64)],
+        zr: &mut Vec<f64>,
+        extra: Option<f64>,
+    ) -> (f64, f64) {
+        let mut v: Vec<f64> = extra.into_iter().collect();
+        let e = v.len();
+        v.push(dot(r, r));
+        v.extend(comp_sums(r, comps));
+        let split = v.len();
+        self.coarse_restrict(r, zr);
+        v.extend_from_slice(zr);
+        let s = self.reduce(&v);
+        zr.copy_from_slice(&s[split..]);
+        let mut rr = s[e];
+        for (k, (own, count)) in comps.iter().enumerate() {
+            let mean = s[e + 1 + k] / count;
+            rr -= count * mean * mean;
+            for &i in own {
+                r[i] -= mean;
+            }
+            if let Some(c) = &self.coarse {
+                for (z, n) in zr.iter_mut().zip(&c.comp_counts[k]) {
+                    *z -= mean * n;
+                }
+            }
+        }
+        (if e > 0 { s[0] } else { 0.0 }, rr.max(0.0))
+    }
+
+    /// Every rank's own values into the global vector `x` (allgather).
+    fn gather(&mut self, own: &[f64], x: &mut [f64]) {
+        self.traffic.gathered_bytes += 8 * own.len() as u64;
+        let all = self.comm.all_gather(own);
+        let mut next = vec![0usize; all.len()];
+        for (g, &o) in self.owner.iter().enumerate() {
+            let o = o as usize;
+            x[g] = all[o][next[o]];
+            next[o] += 1;
+        }
+    }
+}
+
+/// Sums of `v` over each floating component's own members.
+fn comp_sums<'a>(v: &'a [f64], comps: &'a [(Vec<usize>, f64)]) -> impl Iterator<Item = f64> + 'a {
+    comps
+        .iter()
+        .map(move |(own, _)| own.iter().map(|&i| v[i]).sum::<f64>())
+}
+
+/// Subtracts each component's mean (`sums` global, over the component's global count).
+fn project_means(v: &mut [f64], comps: &[(Vec<usize>, f64)], sums: &[f64]) {
+    for ((own, count), s) in comps.iter().zip(sums) {
+        let mean = s / count;
+        for &i in own {
+            v[i] -= mean;
+        }
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
