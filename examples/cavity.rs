@@ -91,7 +91,8 @@ struct Args {
     /// consistent.
     #[arg(long, default_value = "auto")]
     operators: gpm::scene::OperatorSet,
-    /// Laplacian of the viscous term: gpm or least-squares (default: the operator set's).
+    /// Laplacian of the viscous term: gpm or least-squares (default: least-squares, the
+    /// cavity's).
     #[arg(long)]
     laplacian: Option<gpm::consistent::LaplacianKind>,
     /// Output directory.
@@ -123,7 +124,9 @@ fn config(a: &Args) -> CavityConfig {
         c.viscous_theta = a.theta;
         c.scene.source_ghosts = a.source_ghosts;
         c.operators = a.operators;
-        c.laplacian = a.laplacian;
+        if a.laplacian.is_some() {
+            c.laplacian = a.laplacian;
+        }
         c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
     });
     if let Some(s) = a.shift {

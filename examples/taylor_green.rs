@@ -68,6 +68,9 @@ struct Args {
     /// Implicit viscous weight θ.
     #[arg(long, default_value_t = 0.5)]
     theta: f64,
+    /// Laplacian of the viscous term: gpm or least-squares (default: the configuration's).
+    #[arg(long)]
+    laplacian: Option<gpm::consistent::LaplacianKind>,
     /// Lagrangian shifting coefficient (0 = none).
     #[arg(long)]
     shift: Option<f64>,
@@ -107,6 +110,9 @@ fn config(a: &Args) -> TaylorGreenConfig {
         c.integrator = a.integrator;
         c.convection = a.convection;
         c.viscous_theta = a.theta;
+        if a.laplacian.is_some() {
+            c.laplacian = a.laplacian;
+        }
     });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {

@@ -64,6 +64,7 @@ impl SceneParams for Cube {
         FlowConfig {
             n: 16,
             t_end: 30.0,
+            laplacian: Some(super::cavity::WALL_LAPLACIAN),
             ..FlowConfig::default()
         }
     }
