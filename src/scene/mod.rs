@@ -87,11 +87,11 @@ pub struct FlowConfig {
     /// Implicit weight of the viscous term (½ = Crank–Nicolson, 0 = explicit), in [0, 1].
     pub viscous_theta: f64,
     /// Laplacian of the viscous term (`"gpm"` or `"least_squares"`, [`LaplacianKind`]); `null`
-    /// (default) takes the operator set's (`gpm` for the GPM set, `least_squares` for the
-    /// consistent one). The least-squares one is exact on quadratic velocities that take the
-    /// wall value, where the GPM `Δh` with no-slip images is not within `h` of a wall (Re 1000
-    /// cavity, n = 48: RMS u / v against the extrapolated reference 2.6 % / 2.4 % vs 2.8 % /
-    /// 3.0 %).
+    /// takes the operator set's (`gpm` for the GPM set, `least_squares` for the consistent
+    /// one). The least-squares one is exact on quadratic velocities that take the wall value,
+    /// where the GPM `Δh` with no-slip images is not within `h` of a wall; the cavity and the
+    /// cube default to it ([`cavity::WALL_LAPLACIAN`], measured there), the other scenes to
+    /// `null`.
     pub laplacian: Option<LaplacianKind>,
     /// Particle shifting (Lagrangian runs only).
     pub shifting: Option<Shifting>,
