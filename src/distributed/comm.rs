@@ -1,5 +1,5 @@
 //! The few collective operations the distributed solve needs, behind a trait: MPI
-//! ([`super::mpi::MpiComm`], feature `mpi`) or threads of one process ([`ThreadComm`], for the
+//! (`distributed::mpi::MpiComm`, feature `mpi`) or threads of one process ([`ThreadComm`], for the
 //! tests that run without MPI).
 
 use std::collections::{HashMap, VecDeque};
