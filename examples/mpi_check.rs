@@ -3,7 +3,8 @@
 //! ```text
 //! cargo build --release --features mpi --example mpi_check
 //! mpirun -n 4 --oversubscribe target/release/examples/mpi_check [--steps 20] [--tg-n 128]
-//!     [--cavity-n 64] [--preconditioner jacobi|block_amg|block_amg_coarse] [--aggregate-size 16]
+//!     [--cavity-n 64] [--preconditioner jacobi|block_amg|block_amg_coarse|schwarz|chebyshev]
+//!     [--aggregate-size 16] [--chebyshev-degree 2]
 //! ```
 //!
 //! For the Taylor–Green vortex and the lid-driven cavity (Eulerian, CG tolerance 1e-12): rank 0
@@ -28,6 +29,7 @@ struct Args {
     cavity_n: usize,
     preconditioner: DdPreconditioner,
     aggregate_size: usize,
+    chebyshev_degree: usize,
 }
 
 fn args() -> Result<Args> {
@@ -37,6 +39,7 @@ fn args() -> Result<Args> {
         cavity_n: 64,
         preconditioner: DdPreconditioner::default(),
         aggregate_size: 16,
+        chebyshev_degree: 2,
     };
     let v: Vec<String> = std::env::args().skip(1).collect();
     for pair in v.chunks(2) {
@@ -46,6 +49,7 @@ fn args() -> Result<Args> {
             "--tg-n" => a.tg_n = value.parse()?,
             "--cavity-n" => a.cavity_n = value.parse()?,
             "--aggregate-size" => a.aggregate_size = value.parse()?,
+            "--chebyshev-degree" => a.chebyshev_degree = value.parse()?,
             "--preconditioner" => {
                 a.preconditioner = serde_json::from_value(serde_json::Value::String(value.clone()))?
             }
@@ -88,6 +92,7 @@ fn compare<B: Boundary<2>>(
     let mut run = DistributedRun::new(comm);
     run.solver().preconditioner = a.preconditioner;
     run.solver().aggregate_size = a.aggregate_size;
+    run.solver().chebyshev_degree = a.chebyshev_degree;
     run.install(&mut sim);
     let started = std::time::Instant::now();
     let mut rounds = 0;
