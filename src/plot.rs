@@ -203,9 +203,12 @@ where
     macro_rules! body {
         ($ctx:expr) => {{
             let mut ctx = $ctx;
+            // a tick a rounding error away from zero is 0, not -5.55e-17
+            let zero = |lo: f64, hi: f64, log: bool| if log { 0.0 } else { 1e-9 * (hi - lo).abs() };
+            let (zx, zy) = (zero(x0, x1, chart.log_x), zero(y0, y1, chart.log_y));
             ctx.configure_mesh()
-                .x_label_formatter(&|v| tick(*v))
-                .y_label_formatter(&|v| tick(*v))
+                .x_label_formatter(&|v| tick(if v.abs() < zx { 0.0 } else { *v }))
+                .y_label_formatter(&|v| tick(if v.abs() < zy { 0.0 } else { *v }))
                 .x_desc(chart.x_label.as_str())
                 .y_desc(chart.y_label.as_str())
                 .label_style(("sans-serif", 14))
