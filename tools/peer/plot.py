@@ -16,6 +16,7 @@ peer.csv columns:
   particles     fluid particles in the final state
   wall_seconds  wall-clock time of the whole process (start-up, run, its own output), measured
                 by the driver script with the same timer for both codes
+  cpu_seconds   CPU time of that process, user + system over all its threads (/usr/bin/time)
   error_u, error_v, error
                 errors.py: cavity -- RMS of u on x = 0.5 / v on y = 0.5 against the
                 extrapolated Re 100 reference (lid-speed units) and their quadratic mean;
@@ -33,7 +34,8 @@ import math
 import os
 import sys
 
-COLUMNS = ['code', 'case', 'frame', 'method', 'n', 'particles', 'wall_seconds', 'error_u',
+COLUMNS = ['code', 'case', 'frame', 'method', 'n', 'particles', 'wall_seconds', 'cpu_seconds',
+           'error_u',
            'error_v', 'error', 'ghia_u', 'ghia_v', 'own_error', 'own_wall_seconds', 't_final',
            'command']
 
@@ -50,7 +52,7 @@ def main():
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
+    fig, axes2 = plt.subplots(2, 2, figsize=(11, 9))
     styles = {
         ('gpm', 'lagrangian'): dict(color='C0', marker='o', ls='-'),
         ('gpm', 'eulerian'): dict(color='C2', marker='s', ls='--'),
@@ -60,21 +62,26 @@ def main():
                         'vs the extrapolated reference',
               'taylor_green': 'Taylor\u2013Green, Re 100, t = 2\nL1 of the velocity vs the '
                               'exact solution'}
-    for ax, case in zip(axes, ['cavity', 'taylor_green']):
+    panels = [(ax, case, key) for row, key in zip(axes2, ['wall_seconds', 'cpu_seconds'])
+              for ax, case in zip(row, ['cavity', 'taylor_green'])]
+    for ax, case, key in panels:
         groups = {}
         for r in runs:
-            if r['case'] == case and r.get('error') is not None:
+            if r['case'] == case and r.get('error') is not None and r.get(key) is not None:
                 groups.setdefault((r['code'], r['frame'], r['method']), []).append(r)
         for (code, frame, method), rs in sorted(groups.items()):
             rs.sort(key=lambda r: r['n'])
-            st = styles.get((code, frame), dict(marker='x'))
+            st = dict(styles.get((code, frame), dict(marker='x')))
+            if 't = 10' in method:
+                st.update(ls=':', marker='D')
             label = f'{"gpm" if code == "gpm" else "PySPH"} {frame} ({method})'
-            ax.loglog([r['wall_seconds'] for r in rs], [100 * r['error'] for r in rs],
+            ax.loglog([r[key] for r in rs], [100 * r['error'] for r in rs],
                       label=label, **st)
             for r in rs:
-                ax.annotate(f'n={r["n"]}', (r['wall_seconds'], 100 * r['error']),
+                ax.annotate(f'n={r["n"]}', (r[key], 100 * r['error']),
                             textcoords='offset points', xytext=(5, 4), fontsize=8)
-        ax.set_xlabel('wall time [s] (2 cores, shared machine)')
+        ax.set_xlabel('wall time [s] (2 cores, shared with other jobs)' if key == 'wall_seconds'
+                      else 'CPU time, user + system, all threads [s]')
         ax.set_ylabel('error [%]')
         ax.set_title(titles[case], fontsize=10)
         ax.grid(True, which='both', alpha=0.3)

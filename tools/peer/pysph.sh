@@ -6,6 +6,8 @@
 #   tools/peer/pysph.sh [--quick] [--out DIR] [--venv DIR] [--threads T]
 #
 #   --quick     n = 50 only (both codes), no extra gpm points
+#   --cavity-ns "50 100", --tg-ns "50 100"
+#               the n of the cavity and Taylor–Green runs of both codes (default both "50 100")
 #   --out DIR   where the runs, runs.jsonl, peer.csv and work_precision.png go
 #               (default results/peer)
 #   --venv DIR  the throw-away virtual environment (default ${TMPDIR:-/tmp}/gpm-peer-venv;
@@ -16,7 +18,9 @@
 #
 # Every case is timed by this script with the same timer (`date +%s.%N` around the whole
 # process: start-up, run, the code's own output files; PySPH without its examples' plotting
-# post-process, see tools/peer/pysph_run.py). PySPH compiles its generated kernels on first use;
+# post-process, see tools/peer/pysph_run.py), and its CPU time (user + system, all threads,
+# from /usr/bin/time) is recorded beside: on a machine shared with other jobs the wall time
+# depends on what else runs at that moment, the CPU time much less. PySPH compiles its generated kernels on first use;
 # a one-step warm-up of each example fills that cache first so no timed run pays for it
 # (gpm's examples are compiled by cargo before the runs, likewise untimed). The errors of both
 # codes come from the same script, tools/peer/errors.py, on each run's final particle state.
@@ -31,9 +35,13 @@ quick=0
 out="results/peer"
 venv="${TMPDIR:-/tmp}/gpm-peer-venv"
 threads="$(nproc)"
+cavity_ns="50 100"
+tg_ns="50 100"
 while [ $# -gt 0 ]; do
     case "$1" in
         --quick) quick=1 ;;
+        --cavity-ns) cavity_ns="$2"; shift ;;
+        --tg-ns) tg_ns="$2"; shift ;;
         --out) out="$2"; shift ;;
         --venv) venv="$2"; shift ;;
         --threads) threads="$2"; shift ;;
@@ -85,13 +93,15 @@ run() {
     log "$code $case $frame n = $n: $*"
     local t0 t1
     t0=$(date +%s.%N)
-    if ! "$@" > "$dir/stdout.log" 2> "$dir/stderr.log"; then
+    if ! /usr/bin/time -f "%U %S" -o "$dir/cpu.txt" "$@" > "$dir/stdout.log" \
+        2> "$dir/stderr.log"; then
         echo "  FAILED (see $dir/stderr.log)" >&2
         return 0
     fi
     t1=$(date +%s.%N)
-    local wall
+    local wall cpu
     wall=$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }')
+    cpu=$(awk '{ printf "%.3f", $1 + $2 }' "$dir/cpu.txt")
     local ecase="$case"
     [ "$case" = taylor_green ] && ecase=tg
     local err
@@ -101,16 +111,17 @@ run() {
         err='{}'
     fi
     CODE="$code" CASE="$case" FRAME="$frame" METHOD="$method" N="$n" WALL="$wall" \
-        CMD="$*" ERR="$err" REV="$git_rev" "$py" - >> "$runs" << 'EOF'
+        CPU="$cpu" CMD="$*" ERR="$err" REV="$git_rev" "$py" - >> "$runs" << 'EOF'
 import json, os
 r = dict(code=os.environ['CODE'], case=os.environ['CASE'], frame=os.environ['FRAME'],
          method=os.environ['METHOD'], n=int(os.environ['N']),
-         wall_seconds=float(os.environ['WALL']), command=os.environ['CMD'],
+         wall_seconds=float(os.environ['WALL']), cpu_seconds=float(os.environ['CPU']),
+         command=os.environ['CMD'],
          gpm_revision=os.environ['REV'])
 r.update(json.loads(os.environ['ERR']))
 print(json.dumps(r))
 EOF
-    log "  $(tail -n 1 "$runs" | "$py" -c "import json,sys; r=json.load(sys.stdin); print('wall %.1f s, error %s' % (r['wall_seconds'], '%.3f %%' % (100*r['error']) if r.get('error') is not None else '?'))")"
+    log "  $(tail -n 1 "$runs" | "$py" -c "import json,sys; r=json.load(sys.stdin); print('wall %.1f s, CPU %.1f s, error %s' % (r['wall_seconds'], r['cpu_seconds'], '%.3f %%' % (100*r['error']) if r.get('error') is not None else '?'))")"
 }
 
 pysph_run=("$py" "$root/tools/peer/pysph_run.py")
@@ -131,17 +142,22 @@ rm -rf "$warm"
 "$py" tools/peer/errors.py --code pysph --case cavity --n 10 --dir "$warm/cavity" > /dev/null \
     2>> "$warm.log" || true
 
+read -r -a cavity_n <<< "$cavity_ns"
+read -r -a tg_n <<< "$tg_ns"
 if [ "$quick" = 1 ]; then
-    ns=(50)
+    cavity_n=(50)
+    tg_n=(50)
     extra_tg=()
+    extra_cavity=()
 else
-    ns=(50 100)
-    # extra gpm Taylor–Green points for the error–time line (cheap); no extra cavity point:
-    # the Lagrangian cavity at n = 30 runs longer than at n = 50 (steady only at t = 32.5)
+    # extra gpm points for the error–time lines (cheap): Taylor–Green at n = 30 and 70; the
+    # Lagrangian cavity stopped at PySPH's end time t = 10 (not steady by gpm's rule there; at
+    # n = 30 that rule fires only at t = 32.5, later than at n = 50)
     extra_tg=(30 70)
+    extra_cavity=(30 40)
 fi
 
-for n in "${ns[@]}"; do
+for n in "${tg_n[@]}"; do
     run pysph taylor_green lagrangian "ISPH + shifting" "$n" "$out/pysph_tg_n$n" -- \
         "${pysph_run[@]}" taylor_green --nx "$n" "${pysph_tg_opts[@]}" -d "$out/pysph_tg_n$n"
     run gpm taylor_green lagrangian "GPM" "$n" "$out/gpm_tg_lag_n$n" -- \
@@ -155,7 +171,12 @@ for n in "${extra_tg[@]}"; do
         "$bin/taylor_green" --motion lagrangian --n "$n" --t-end 2 --particles-csv \
         --out "$out/gpm_tg_lag_n$n"
 done
-for n in "${ns[@]}"; do
+for n in "${extra_cavity[@]}"; do
+    run gpm cavity lagrangian "GPM, to t = 10" "$n" "$out/gpm_cavity_lag_t10_n$n" -- \
+        "$bin/cavity" --motion lagrangian --n "$n" --t-end 10 --particles-csv --quiet \
+        --out "$out/gpm_cavity_lag_t10_n$n"
+done
+for n in "${cavity_n[@]}"; do
     run gpm cavity eulerian "GPM" "$n" "$out/gpm_cavity_eul_n$n" -- \
         "$bin/cavity" --n "$n" --particles-csv --quiet --out "$out/gpm_cavity_eul_n$n"
     run gpm cavity lagrangian "GPM" "$n" "$out/gpm_cavity_lag_n$n" -- \
