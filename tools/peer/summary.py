@@ -4,10 +4,10 @@
 usage: summary.py peer.csv
 
 Time for gpm to reach an error e* (its Lagrangian runs, errors from tools/peer/errors.py):
-the runs' (wall time, error) points are sorted by wall time; if the fastest run is already at
-or below e*, its time is used (an upper bound: a coarser run would be faster still); otherwise
-the two runs that bracket e* are joined by a straight line in log(error)-log(time) and the time
-is read off it; if no run reaches e*, there is no ratio.
+the runs (n, time, error) of one method are taken in the order of n; if the coarsest run is
+already at or below e*, its time is used (an upper bound: a coarser run would be faster still);
+otherwise the two consecutive runs whose errors bracket e* are joined by a straight line in
+log(error)-log(time) and the time is read off it; if no run reaches e*, there is no ratio.
 """
 import csv
 import math
@@ -15,11 +15,11 @@ import sys
 
 
 def time_to_reach(points, target):
-    pts = sorted(points)
+    pts = sorted(points, key=lambda p: p[2])  # by n: the error falls with n
     if not pts:
         return None, 'no runs'
     if pts[0][1] <= target:
-        return pts[0][0], f'fastest run (n = {pts[0][2]}) already below: its time, an upper bound'
+        return pts[0][0], f'coarsest run (n = {pts[0][2]}) already below: its time, an upper bound'
     for (t1, e1, n1), (t2, e2, n2) in zip(pts, pts[1:]):
         if e1 > target >= e2:
             s = math.log(t2 / t1) / math.log(e2 / e1)
