@@ -8,7 +8,8 @@
 //! Writes into `--out` (default `results/cavity_re{Re}_n{n}`): `profile_u.csv` (`y,u` along
 //! x = 0.5), `profile_v.csv` (`x,v` along y = 0.5), `summary.json` (errors against Ghia in units of
 //! the lid speed, run time, how steadiness was judged, the configuration), `profiles.png` and
-//! `particles.png`.
+//! `particles.png`; with `--particles-csv` also `particles.csv` (`x,y,u,v,p` of the fluid
+//! particles at the end).
 
 use anyhow::{Context, Result};
 use clap::Parser;
@@ -108,6 +109,10 @@ struct Args {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Also write the final fluid particles into OUT/particles.csv (`x,y,u,v,p`), e.g. for
+    /// `tools/peer/errors.py`.
+    #[arg(long)]
+    particles_csv: bool,
 }
 
 fn config(a: &Args) -> CavityConfig {
@@ -229,6 +234,11 @@ fn run(a: Args) -> Result<ExitCode> {
     run.write_tables(&out, &cfg)
         .with_context(|| format!("writing tables into {out:?}"))?;
     run.write_plots(&out, &cfg).context("writing plots")?;
+    if a.particles_csv {
+        let path = out.join("particles.csv");
+        std::fs::write(&path, run.sim.particles.fluid_csv())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     let res = &run.result;
     println!(
         "cavity Re {} n {} ({} fluid particles): {} steps to t = {:.2}, {:.1} s wall",

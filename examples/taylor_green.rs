@@ -8,6 +8,7 @@
 //! `summary.json` holds `l1_velocity_error` (Σ|u − u_ex| / Σ|u_ex| over the particles),
 //! `linf_decay_error` (relative error of the maximum speed against `U e^{−8π²t/Re}`),
 //! `l1_pressure_error` (mean-free L1, relative) and `wall_seconds`.
+//! `--particles-csv` also writes `particles.csv` (`x,y,u,v,p` of the particles at the end).
 //!
 //! **Convergence mode.** Spatial orders: n = 25, 50, 100, 200 at a fixed small Δt, against the
 //! exact solution. Temporal orders: n fixed and Δt halved four times, each run compared with a
@@ -95,6 +96,10 @@ struct Args {
     /// Steps between particle snapshots at --record full.
     #[arg(long, default_value_t = 10)]
     record_every: u64,
+    /// Also write the final fluid particles into OUT/particles.csv (`x,y,u,v,p`), e.g. for
+    /// `tools/peer/errors.py`.
+    #[arg(long)]
+    particles_csv: bool,
 }
 
 fn config(a: &Args) -> TaylorGreenConfig {
@@ -344,6 +349,11 @@ fn single(a: &Args) -> Result<ExitCode> {
         return Ok(ExitCode::from(130));
     }
     run.write_tables(&a.out, &cfg)?;
+    if a.particles_csv {
+        let path = a.out.join("particles.csv");
+        std::fs::write(&path, run.sim.particles.fluid_csv())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     let res = &run.result;
     println!(
         "Taylor–Green Re {} n {} t = {:.2} ({} steps, {:.2} s): L1 velocity error {:.3e}, max-speed decay error {:.3e}, L1 pressure error {:.3e}",

@@ -101,6 +101,26 @@ impl<const D: usize> Particles<D> {
         self.role.iter().filter(|r| r.is_fluid()).count()
     }
 
+    /// The fluid particles as CSV text: a header line (`x,y,u,v,p` in 2D, `x,y,z,u,v,w,p` in
+    /// 3D), then one row per fluid particle in index order, numbers in their shortest exact
+    /// form (what the examples' `--particles-csv` writes, for scripts outside gpm).
+    pub fn fluid_csv(&self) -> String {
+        use std::fmt::Write;
+        const AXES: [&str; 3] = ["x", "y", "z"];
+        const VELS: [&str; 3] = ["u", "v", "w"];
+        let mut text = AXES[..D].join(",");
+        text.push(',');
+        text.push_str(&VELS[..D].join(","));
+        text.push_str(",p\n");
+        for i in (0..self.len()).filter(|&i| self.role[i].is_fluid()) {
+            for v in self.x[i].iter().chain(&self.u[i]) {
+                let _ = write!(text, "{v},");
+            }
+            let _ = writeln!(text, "{}", self.p[i]);
+        }
+        text
+    }
+
     /// Largest speed `max |u_i|` over the fluid particles (0 without any).
     pub fn max_fluid_speed(&self) -> f64 {
         self.u

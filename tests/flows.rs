@@ -632,3 +632,33 @@ fn tiny_cube_is_symmetric_and_driven_by_its_lid() {
     assert!(summary["symmetry"].as_f64().unwrap() < 1e-8);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `Particles::fluid_csv` (the examples' `--particles-csv`, read by `tools/peer/errors.py`):
+/// header, fluid particles only, numbers that read back exactly.
+#[test]
+fn fluid_csv_lists_the_fluid_particles_exactly() {
+    let mut p = Particles::<2>::new();
+    p.push([0.1, 0.25], [-1.5, 1.0 / 3.0], 2.0, 0.01, Role::Fluid);
+    p.push([0.5, 0.5], [0.0, 0.0], 0.0, 0.01, Role::Dirichlet);
+    p.push([0.9, 0.75], [1e-17, -0.0], -0.125, 0.01, Role::Fluid);
+    p.push(
+        [-0.1, 0.25],
+        [1.5, 0.0],
+        2.0,
+        0.01,
+        Role::Ghost {
+            source: 0,
+            walls: 1,
+        },
+    );
+    let text = p.fluid_csv();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "x,y,u,v,p");
+    assert_eq!(lines.len(), 3, "{text}");
+    let row: Vec<f64> = lines[1].split(',').map(|v| v.parse().unwrap()).collect();
+    assert_eq!(row, vec![0.1, 0.25, -1.5, 1.0 / 3.0, 2.0]);
+    assert_eq!(lines[2], "0.9,0.75,0.00000000000000001,-0,-0.125");
+    let mut q = Particles::<3>::new();
+    q.push([0.0; 3], [0.0; 3], 0.0, 1.0, Role::Fluid);
+    assert_eq!(q.fluid_csv(), "x,y,z,u,v,w,p\n0,0,0,0,0,0,0\n");
+}
