@@ -207,20 +207,16 @@ fn a_tank_with_free_slip_walls_keeps_its_hydrostatic_pressure() {
     assert!(r.kinetic_energy_decay < 0.5, "{}", r.kinetic_energy_decay);
 }
 
-/// A recorded tank reads back with its surface count in every step's diagnostics (and the
-/// replay CSV's last two columns).
-#[test]
-fn the_surface_count_is_recorded_every_step() {
-    use gpm::record::replay::Replay;
+/// Runs `cfg` recording its diagnostics into `dir/run.mcap` and reads the file back (one
+/// message per step).
+fn run_and_replay<const D: usize, S: gpm::scene::Scene<D>>(
+    cfg: &gpm::scene::SceneConfig<S>,
+    dir: &std::path::Path,
+) -> (gpm::scene::SceneRun<D, S>, gpm::record::replay::Replay) {
     use gpm::record::{RecordLevel, RecorderOptions};
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("run.mcap");
-    let cfg = HydrostaticConfig::default().with(|c| {
-        c.n = 16;
-        c.t_end = 0.2;
-    });
+    let path = dir.join("run.mcap");
     let done = gpm::scene::run_recorded(
-        &cfg,
+        cfg,
         &path,
         RecorderOptions::new(RecordLevel::Diagnostics, 0),
         &cfg.record_header(),
@@ -230,8 +226,21 @@ fn the_surface_count_is_recorded_every_step() {
     .unwrap();
     let run = done.run.unwrap();
     done.record.unwrap();
-    let replay = Replay::open(&path).unwrap();
+    let replay = gpm::record::replay::Replay::open(&path).unwrap();
     assert_eq!(replay.steps.len() as u64, run.sim.steps);
+    (run, replay)
+}
+
+/// A recorded tank reads back with its surface count in every step's diagnostics (and the
+/// replay CSV's last two columns).
+#[test]
+fn the_surface_count_is_recorded_every_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = HydrostaticConfig::default().with(|c| {
+        c.n = 16;
+        c.t_end = 0.2;
+    });
+    let (_, replay) = run_and_replay(&cfg, dir.path());
     for d in &replay.steps {
         assert_eq!(d.surface_particles, Some(16), "step {}", d.step);
         assert_eq!(d.splash_particles, Some(0), "step {}", d.step);
@@ -255,26 +264,13 @@ fn the_surface_count_is_recorded_every_step() {
 #[test]
 fn a_small_3d_dam_break_moves_out_keeps_its_volume_and_records_every_step() {
     use gpm::error::{Error, InputError};
-    use gpm::record::replay::Replay;
-    use gpm::record::{RecordLevel, RecorderOptions};
     use gpm::scene::dam_break_3d::{self, DamBreak3dConfig};
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("run.mcap");
     let cfg = DamBreak3dConfig::default().with(|c| {
         c.n = 8;
         c.t_end = 1.0 / 2f64.sqrt();
     });
-    let done = gpm::scene::run_recorded(
-        &cfg,
-        &path,
-        RecorderOptions::new(RecordLevel::Diagnostics, 0),
-        &cfg.record_header(),
-        |_| {},
-        |_, _| Ok(std::ops::ControlFlow::Continue(())),
-    )
-    .unwrap();
-    let run = done.run.unwrap();
-    done.record.unwrap();
+    let (run, replay) = run_and_replay(&cfg, dir.path());
     let r = &run.result;
     assert_eq!((r.particles, r.depth), (8 * 16 * 8, Some(1.0)));
     let (t, z) = *r.front.last().unwrap();
@@ -301,8 +297,6 @@ fn a_small_3d_dam_break_moves_out_keeps_its_volume_and_records_every_step() {
             .all(|i| p.x[i].iter().chain(&p.u[i]).all(|v| v.is_finite()) && p.p[i].is_finite()),
         "a NaN in the state"
     );
-    let replay = Replay::open(&path).unwrap();
-    assert_eq!(replay.steps.len() as u64, run.sim.steps);
     assert!(run.sim.steps >= 10, "{} steps", run.sim.steps);
     for d in &replay.steps {
         let surface = d.surface_particles.unwrap();

@@ -460,41 +460,40 @@ fn write_plots<const D: usize, S: ColumnScene<D>>(
     let spec = cfg.scene.spec();
     let mm = crate::reference::martin_moyce();
     let dev = |d: Option<f64>| d.map_or("–".to_string(), |d| format!("{:.1} %", 100.0 * d));
+    let chart = |title: String, x: &str, y: &str, sim: &[(f64, f64)], exp: &[(f64, f64)]| {
+        let chart = Chart {
+            title,
+            x_label: x.into(),
+            y_label: y.into(),
+            ..Default::default()
+        };
+        let series = vec![
+            Series::line("gpm", sim.to_vec()),
+            Series::points("Martin & Moyce 1952", exp.to_vec()),
+        ];
+        (chart, series)
+    };
+    let front = format!(
+        "surge front, n = {}: mean deviation {} (1 ≤ T ≤ 3)",
+        res.n,
+        dev(res.front_deviation)
+    );
+    let height = format!(
+        "column height: mean deviation {} (τ ≤ 2)",
+        dev(res.height_deviation)
+    );
     line_charts(
         &dir.join("dam_break.png"),
         1200,
         520,
         &[
-            (
-                Chart {
-                    title: format!(
-                        "surge front, n = {}: mean deviation {} (1 ≤ T ≤ 3)",
-                        res.n,
-                        dev(res.front_deviation)
-                    ),
-                    x_label: "T = t √(2g/a)".into(),
-                    y_label: "Z = z/a".into(),
-                    ..Default::default()
-                },
-                vec![
-                    Series::line("gpm", res.front.clone()),
-                    Series::points("Martin & Moyce 1952", mm.front.clone()),
-                ],
-            ),
-            (
-                Chart {
-                    title: format!(
-                        "column height: mean deviation {} (τ ≤ 2)",
-                        dev(res.height_deviation)
-                    ),
-                    x_label: "τ = t √(g/a)".into(),
-                    y_label: "H = η/(2a)".into(),
-                    ..Default::default()
-                },
-                vec![
-                    Series::line("gpm", res.height.clone()),
-                    Series::points("Martin & Moyce 1952", mm.height.clone()),
-                ],
+            chart(front, "T = t √(2g/a)", "Z = z/a", &res.front, &mm.front),
+            chart(
+                height,
+                "τ = t √(g/a)",
+                "H = η/(2a)",
+                &res.height,
+                &mm.height,
             ),
         ],
     )?;
