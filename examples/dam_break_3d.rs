@@ -8,7 +8,8 @@
 //! ```
 //!
 //! Defaults: column width a = 1, height 2a (along z), depth b = a (along y), tank length 5a,
-//! 16 particles across the column, g = 1, `re` = √(g a³)/ν = 4·10⁴, to T = t√(2g/a) = 3.
+//! 16 particles across the column, free-slip walls (no-slip: `--config` with
+//! `{"walls": "no_slip"}`), g = 1, `re` = √(g a³)/ν = 4·10⁴, to T = t√(2g/a) = 3.
 //! Writes into `--out`: `front.csv` (`T,Z`), `height.csv` (`tau,H`), `dam_break.png`,
 //! `pressure.png` (the mid-plane slab y ≈ b/2), `summary.json` (resolution, particle count,
 //! steps, `wall_seconds`, `seconds_per_step`, `front_deviation`, `height_deviation`, the

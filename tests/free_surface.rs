@@ -256,8 +256,9 @@ fn the_surface_count_is_recorded_every_step() {
     assert!(lines.next().unwrap().ends_with(",16,0"));
 }
 
-/// A tiny 3D dam break (n = 8, depth a: 1 024 particles, 20 steps to T = 1): the front moves
-/// out at the experiment's pace (Martin & Moyce: Z ≈ 1.32 at T = 1; measured 1.31), the column
+/// A tiny 3D dam break (n = 8, depth a: 1 024 particles, 20 steps to T = 1, free-slip walls,
+/// the scene's default): the front moves out at the experiment's pace (Martin & Moyce: Z ≈ 1.32
+/// at T = 1; measured 1.39, free-slip fronts run ahead of it as in 2D), the column
 /// top stays near 2a, the water's volume (particle count × ω) is kept, and every step's surface
 /// count, connectivity to the band, c0 and Theorem 4.5 ratio are recorded and sound; nothing
 /// is NaN. A bad depth is a typed error naming the key.
