@@ -461,6 +461,7 @@ fn scene_configuration_keys_are_the_serialised_keys() {
     check::<gpm::scene::hydrostatic::Hydrostatic>();
     check::<gpm::scene::dam_break::DamBreak>();
     check::<gpm::scene::cube::Cube>();
+    check::<gpm::scene::dam_break_3d::DamBreak3d>();
     assert_eq!(
         gpm::scene::SCENES,
         [
@@ -469,7 +470,8 @@ fn scene_configuration_keys_are_the_serialised_keys() {
             "channel",
             "hydrostatic",
             "dam_break",
-            "cube"
+            "cube",
+            "dam_break_3d"
         ]
     );
 }
@@ -533,6 +535,10 @@ fn scenes_are_found_by_name() {
         ("dam_break", 2)
     );
     assert_eq!(gpm::scene::visit_scene("cube", Name).unwrap(), ("cube", 3));
+    assert_eq!(
+        gpm::scene::visit_scene("dam-break-3d", Name).unwrap(),
+        ("dam_break_3d", 3)
+    );
     match gpm::scene::visit_scene("sloshing", Name) {
         Err(gpm::error::InputError::Config { key, reason }) => {
             assert_eq!(key, "scene");

@@ -166,7 +166,8 @@ fn scene_name(s: &str) -> Result<String, String> {
 #[derive(Args, Debug)]
 struct RunArgs {
     /// Scene: cavity (lid-driven, compared with Ghia et al. 1982), cube (the 3D lid-driven
-    /// cavity), taylor-green (periodic vortex, exact solution), channel, hydrostatic, dam-break.
+    /// cavity), taylor-green (periodic vortex, exact solution), channel, hydrostatic, dam-break,
+    /// dam-break-3d (a column in a box).
     #[arg(value_parser = scene_name)]
     scene: String,
     /// Full scene configuration (JSON, unknown keys rejected); the flags below override it.

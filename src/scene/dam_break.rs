@@ -11,6 +11,12 @@
 //! water within `Δx` of the left wall, plus `Δx/2`), compared with the experiment
 //! ([`crate::reference::martin_moyce`]) by the mean relative deviation over the measured points
 //! with `1 ≤ T ≤ 3` (front) and `τ ≤ 2` (height).
+//!
+//! The build, the observables and the report are generic over the dimension ([`ColumnScene`]:
+//! [`build_column`], [`front_and_height`]; the vertical is the last axis), shared with the 3D
+//! dam break ([`super::dam_break_3d`]): every [`ColumnScene<D>`] is a [`Scene<D>`]. Every run
+//! reports its mean time per step and the water's volume `Σ ω` (kept: fixed volumes, no
+//! particle lost).
 
 use super::hydrostatic::{check_gravity, free_surface_flow, WallKind};
 use super::{run_scene, FlowConfig, MonitorRanges, Scene, SceneConfig, SceneParams, Table};
@@ -96,40 +102,101 @@ impl SceneParams for DamBreak {
     }
 }
 
-/// Builds the dam break: the column `[0, a] × [0, 2a]` at rest in the tank `[0, L a]`, walls on
-/// three sides, gravity, a free surface.
-pub fn build(cfg: &DamBreakConfig) -> Result<Simulation<2, Walls<2>>, Error> {
-    cfg.validate()?;
-    let dx = cfg.dx();
-    let mut p = Particles::<2>::new();
-    for x in lattice([0.0, 0.0], [1.0, 2.0], dx) {
-        p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
-    }
-    let walls = cfg
-        .scene
-        .walls
-        .apply(Walls::tank([0.0, 0.0], [cfg.scene.length, 2.0]));
-    let g = cfg.scene.gravity;
-    // the front's speed approaches 2√(g h) ≈ 2√(2 g a)
-    let u_ref = 2.0 * (2.0 * g).sqrt();
-    let mut params = cfg.flow_params(u_ref);
-    params.projection.nu = g.sqrt() / cfg.re;
-    params.projection.gravity = [0.0, -g];
-    params.projection.allowed_floating = 0;
-    super::hydrostatic::free_surface_operators(&mut params.projection, cfg.operators);
-    if params.limits.guard.energy_floor == 0.0 {
-        // from rest the energy grows by large factors in the first steps
-        params.limits.guard.energy_floor = 1e-3 * 0.5 * u_ref * u_ref * 2.0;
-    }
-    Simulation::new(p, walls, cfg.neighbor_config(), params)?
-        .with_free_surface(cfg.scene.free_surface)
+/// The geometry and physics of a column collapse, whatever the dimension: what the 2D
+/// [`DamBreak`] and the 3D [`super::dam_break_3d::DamBreak3d`] share.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ColumnSpec {
+    /// Tank length over the column width `L`.
+    pub length: f64,
+    /// Depth of column and tank across the flow `b/a` (3D: along `y`; unused in 2D), rounded
+    /// to whole particle spacings by [`column_extent`].
+    pub depth: f64,
+    /// Gravity `g`, along `−x_{D−1}`.
+    pub gravity: f64,
+    /// Free-surface detection.
+    pub free_surface: FreeSurface,
+    /// The walls.
+    pub walls: WallKind,
 }
 
-/// The front `z` (largest `x` of the water plus `Δx/2`) and the column height `η` at the left
-/// wall (largest `y` of the water within `Δx` of it, plus `Δx/2`). Splash particles — band
-/// particles without a fluid neighbour within `h`, drops that left the bulk — are not the
-/// water's front or top.
-pub fn front_and_height(sim: &Simulation<2, Walls<2>>) -> (f64, f64) {
+/// A column-collapse scene in `D` dimensions: its keys give a [`ColumnSpec`]. Every such
+/// scene is a [`Scene<D>`] through one generic implementation (build, observe, report).
+pub trait ColumnScene<const D: usize>: SceneParams {
+    /// What the plots call the scene (`"dam break"`).
+    const TITLE: &'static str;
+    /// The column and tank.
+    fn spec(&self) -> ColumnSpec;
+}
+
+impl ColumnScene<2> for DamBreak {
+    const TITLE: &'static str = "dam break";
+    fn spec(&self) -> ColumnSpec {
+        ColumnSpec {
+            length: self.length,
+            depth: 1.0,
+            gravity: self.gravity,
+            free_surface: self.free_surface,
+            walls: self.walls,
+        }
+    }
+}
+
+/// The upper corner of the column, `[1, b, 2]` in 3D (`[1, 2]` in 2D): width `a = 1` along
+/// `x_0`, height `2a` along `x_{D−1}` (up), the depth `b` rounded to a whole number (at least
+/// one) of spacings `dx` on the axes between.
+pub fn column_extent<const D: usize>(spec: &ColumnSpec, dx: f64) -> [f64; D] {
+    let depth = (spec.depth / dx).round().max(1.0) * dx;
+    std::array::from_fn(|a| match a {
+        0 => 1.0,
+        a if a == D - 1 => 2.0,
+        _ => depth,
+    })
+}
+
+/// Builds a column collapse in `D` dimensions: the column `[0, a] × [0, b] × [0, 2a]` (2D:
+/// `[0, a] × [0, 2a]`) at rest against the wall `x = 0` of the tank `[0, L a] × [0, b] × [0,
+/// 2a]`, walls on every side but the top, gravity along `−x_{D−1}`, a free surface.
+pub fn build_column<const D: usize>(
+    flow: &FlowConfig,
+    spec: &ColumnSpec,
+) -> Result<Simulation<D, Walls<D>>, Error> {
+    let dx = flow.dx();
+    let hi = column_extent::<D>(spec, dx);
+    let mut p = Particles::<D>::new();
+    for x in lattice([0.0; D], hi, dx) {
+        p.push(x, [0.0; D], 0.0, dx.powi(D as i32), Role::Fluid);
+    }
+    let mut tank = hi;
+    tank[0] = spec.length;
+    let walls = spec.walls.apply(Walls::tank([0.0; D], tank));
+    let g = spec.gravity;
+    // the front's speed approaches 2√(g h) ≈ 2√(2 g a)
+    let u_ref = 2.0 * (2.0 * g).sqrt();
+    let mut params = flow.flow_params(u_ref);
+    params.projection.nu = g.sqrt() / flow.re;
+    params.projection.gravity[D - 1] = -g;
+    params.projection.allowed_floating = 0;
+    super::hydrostatic::free_surface_operators(&mut params.projection, flow.operators);
+    if params.limits.guard.energy_floor == 0.0 {
+        // from rest the energy grows by large factors in the first steps
+        let volume: f64 = hi.iter().product();
+        params.limits.guard.energy_floor = 1e-3 * 0.5 * u_ref * u_ref * volume;
+    }
+    Simulation::new(p, walls, flow.neighbor_config(), params)?.with_free_surface(spec.free_surface)
+}
+
+/// Builds the dam break: the column `[0, a] × [0, 2a]` at rest in the tank `[0, L a]`, walls on
+/// three sides, gravity, a free surface ([`build_column`] in 2D).
+pub fn build(cfg: &DamBreakConfig) -> Result<Simulation<2, Walls<2>>, Error> {
+    cfg.validate()?;
+    build_column(cfg, &cfg.scene.spec())
+}
+
+/// The front `z` (largest `x_0` of the water plus `Δx/2`) and the column height `η` at the
+/// left wall (largest `x_{D−1}` of the water within `Δx` of it, plus `Δx/2`), in any
+/// dimension (3D: over the whole depth). Splash particles — band particles without a fluid
+/// neighbour within `h`, drops that left the bulk — are not the water's front or top.
+pub fn front_and_height<const D: usize>(sim: &Simulation<D, Walls<D>>) -> (f64, f64) {
     let p = &sim.particles;
     let nl = &sim.nl;
     let dx = sim.params.dx;
@@ -144,14 +211,23 @@ pub fn front_and_height(sim: &Simulation<2, Walls<2>>) -> (f64, f64) {
         if p.role[i].is_real() && attached(i) {
             z = z.max(p.x[i][0]);
             if p.x[i][0] < dx {
-                eta = eta.max(p.x[i][1]);
+                eta = eta.max(p.x[i][D - 1]);
             }
         }
     }
     (z + 0.5 * dx, eta + 0.5 * dx)
 }
 
-/// What a dam-break run accumulates and reports.
+/// The water's volume `Σ ω_i` over the fluid and band particles.
+fn water_volume<const D: usize>(sim: &Simulation<D, Walls<D>>) -> f64 {
+    let p = &sim.particles;
+    (0..p.len())
+        .filter(|&i| p.role[i].is_real())
+        .map(|i| p.vol[i])
+        .sum()
+}
+
+/// What a dam-break run accumulates and reports (2D and 3D).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DamBreakResult {
     /// Particles across the column width.
@@ -160,14 +236,20 @@ pub struct DamBreakResult {
     pub particles: usize,
     /// Particle spacing `Δx/a`.
     pub dx: f64,
+    /// 3D: the depth `b/a` of column and tank, rounded to whole spacings (absent in 2D).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth: Option<f64>,
     /// Steps.
     pub steps: u64,
     /// Final time `t √(g/a)`.
     pub t_end: f64,
     /// Final `T = t√(2g/a)`.
     pub t_end_scaled: f64,
-    /// Wall seconds.
+    /// Wall seconds (set-up included).
     pub wall_seconds: f64,
+    /// Mean wall seconds per step (set-up excluded).
+    #[serde(default)]
+    pub seconds_per_step: f64,
     /// Mean relative deviation of the front from Martin & Moyce over `1 ≤ T ≤ 3`
     /// (`null` when the run did not reach a measured point).
     pub front_deviation: Option<f64>,
@@ -183,6 +265,13 @@ pub struct DamBreakResult {
     pub surface_max: usize,
     /// Most splash particles (band particles without a fluid neighbour) in a step.
     pub splash_max: usize,
+    /// The water's volume `Σ ω` (fluid and band particles) at the start.
+    #[serde(default)]
+    pub volume: f64,
+    /// Largest relative change of the water's volume from the start over the steps (the
+    /// particles keep their volumes `Δx^D` and none is lost: 0 up to round-off).
+    #[serde(default)]
+    pub volume_change: f64,
     /// Ranges of the per-step monitor.
     pub monitor: MonitorRanges,
     /// `(T, Z)` per step (and at `t = 0`).
@@ -191,78 +280,105 @@ pub struct DamBreakResult {
     /// `(τ, H)` per step (and at `t = 0`).
     #[serde(skip)]
     pub height: Vec<(f64, f64)>,
-    /// `(T, positions, pressures)` of the water (fluid and band particles) after the first step
-    /// at or past each `T` of [`PRESSURE_AT`] (drawn into `pressure.png` with the final state).
+    /// `(T, positions, pressures)` of the water (fluid and band particles; 3D: those of the
+    /// mid-plane slab `|y − b/2| ≤ Δx/2`, positions `(x, z)`) after the first step at or past
+    /// each `T` of [`PRESSURE_AT`] (drawn into `pressure.png` with the final state).
     #[serde(skip)]
     pub pressure: Vec<(f64, Vec<[f64; 2]>, Vec<f64>)>,
+    /// When the first step began (after the set-up).
+    #[serde(skip)]
+    pub stepping_from: Option<Instant>,
 }
 
 /// `T = t√(2g/a)` at which the water's pressure is kept for `pressure.png` (the final state is
 /// drawn as well).
 pub const PRESSURE_AT: [f64; 3] = [0.0, 1.0, 2.0];
 
-/// `(T, positions, pressures)` of the water now.
-fn water_pressure(sim: &Simulation<2, Walls<2>>, big_t: f64) -> (f64, Vec<[f64; 2]>, Vec<f64>) {
+/// `(T, positions, pressures)` of the water now, positions `(x_0, x_{D−1})`; in 3D only the
+/// particles of the mid-plane slab `|x_1 − depth/2| ≤ Δx/2`.
+fn water_pressure<const D: usize>(
+    sim: &Simulation<D, Walls<D>>,
+    depth: f64,
+    big_t: f64,
+) -> (f64, Vec<[f64; 2]>, Vec<f64>) {
     let p = &sim.particles;
-    let water = (0..p.len()).filter(|&i| p.role[i].is_real());
-    let (x, pressure) = water.map(|i| (p.x[i], p.p[i])).unzip();
+    let slab = 0.5 * sim.params.dx + 1e-9;
+    let water = (0..p.len()).filter(|&i| {
+        p.role[i].is_real() && (1..D - 1).all(|a| (p.x[i][a] - 0.5 * depth).abs() <= slab)
+    });
+    let (x, pressure) = water.map(|i| ([p.x[i][0], p.x[i][D - 1]], p.p[i])).unzip();
     (big_t, x, pressure)
 }
 
 /// The flat summary written to `summary.json`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct DamBreakSummary {
+pub struct ColumnSummary<S> {
     /// The result.
     #[serde(flatten)]
     pub result: DamBreakResult,
     /// The configuration of the run.
-    pub config: DamBreakConfig,
+    pub config: SceneConfig<S>,
 }
 
-fn sample(res: &mut DamBreakResult, g: f64, t: f64, sim: &Simulation<2, Walls<2>>) {
+/// The 2D dam break's `summary.json`.
+pub type DamBreakSummary = ColumnSummary<DamBreak>;
+
+fn sample<const D: usize>(
+    res: &mut DamBreakResult,
+    spec: &ColumnSpec,
+    t: f64,
+    sim: &Simulation<D, Walls<D>>,
+) {
+    let g = spec.gravity;
     let (z, eta) = front_and_height(sim);
-    res.front.push((t * (2.0 * g).sqrt(), z));
-    res.height.push((t * g.sqrt(), eta / 2.0));
     let big_t = t * (2.0 * g).sqrt();
+    res.front.push((big_t, z));
+    res.height.push((t * g.sqrt(), eta / 2.0));
     // not at t = 0, where no step has set the pressure yet
     if t > 0.0
         && PRESSURE_AT
             .get(res.pressure.len())
             .is_some_and(|&at| big_t >= at)
     {
-        res.pressure.push(water_pressure(sim, big_t));
+        let depth = res.depth.unwrap_or(0.0);
+        res.pressure.push(water_pressure(sim, depth, big_t));
     }
 }
 
-impl Scene<2> for DamBreak {
-    type Boundary = Walls<2>;
+impl<const D: usize, S: ColumnScene<D>> Scene<D> for S {
+    type Boundary = Walls<D>;
     type State = DamBreakResult;
     type Result = DamBreakResult;
-    type Summary = DamBreakSummary;
+    type Summary = ColumnSummary<S>;
     const LAND_ON_T_END: bool = true;
 
-    fn build(cfg: &DamBreakConfig) -> Result<Simulation<2, Walls<2>>, Error> {
-        build(cfg)
+    fn build(cfg: &SceneConfig<S>) -> Result<Simulation<D, Walls<D>>, Error> {
+        cfg.validate()?;
+        build_column(cfg, &cfg.scene.spec())
     }
 
-    fn start(cfg: &DamBreakConfig, sim: &Simulation<2, Walls<2>>) -> DamBreakResult {
+    fn start(cfg: &SceneConfig<S>, sim: &Simulation<D, Walls<D>>) -> DamBreakResult {
+        let spec = cfg.scene.spec();
         let mut res = DamBreakResult {
             n: cfg.n,
             particles: sim.particles.role.iter().filter(|r| r.is_real()).count(),
             dx: sim.params.dx,
+            depth: (D > 2).then(|| column_extent::<D>(&spec, sim.params.dx)[1]),
             surface_min: usize::MAX,
+            volume: water_volume(sim),
             monitor: MonitorRanges::new(),
+            stepping_from: Some(Instant::now()),
             ..Default::default()
         };
-        sample(&mut res, cfg.scene.gravity, 0.0, sim);
+        sample(&mut res, &spec, 0.0, sim);
         res
     }
 
     fn observe(
         res: &mut DamBreakResult,
-        cfg: &DamBreakConfig,
+        cfg: &SceneConfig<S>,
         rep: &FlowReport,
-        sim: &Simulation<2, Walls<2>>,
+        sim: &Simulation<D, Walls<D>>,
     ) -> ControlFlow<()> {
         res.monitor.observe(rep);
         if let Some(s) = rep.surface {
@@ -270,19 +386,27 @@ impl Scene<2> for DamBreak {
             res.surface_max = res.surface_max.max(s.surface);
             res.splash_max = res.splash_max.max(s.splash);
         }
-        sample(res, cfg.scene.gravity, rep.time, sim);
+        let change = (water_volume(sim) / res.volume - 1.0).abs();
+        // a NaN volume is the largest change
+        res.volume_change = if change.is_nan() {
+            f64::INFINITY
+        } else {
+            res.volume_change.max(change)
+        };
+        sample(res, &cfg.scene.spec(), rep.time, sim);
         ControlFlow::Continue(())
     }
 
     fn finish(
         mut res: DamBreakResult,
-        cfg: &DamBreakConfig,
-        sim: &Simulation<2, Walls<2>>,
+        cfg: &SceneConfig<S>,
+        sim: &Simulation<D, Walls<D>>,
         started: Instant,
     ) -> DamBreakResult {
+        let g = cfg.scene.spec().gravity;
         res.steps = sim.steps;
-        res.t_end = sim.time * cfg.scene.gravity.sqrt();
-        res.t_end_scaled = sim.time * (2.0 * cfg.scene.gravity).sqrt();
+        res.t_end = sim.time * g.sqrt();
+        res.t_end_scaled = sim.time * (2.0 * g).sqrt();
         if res.surface_min == usize::MAX {
             res.surface_min = 0;
         }
@@ -292,17 +416,20 @@ impl Scene<2> for DamBreak {
         (res.front_deviation, res.front_points) = front.map_or((None, 0), |(d, k)| (Some(d), k));
         (res.height_deviation, res.height_points) = height.map_or((None, 0), |(d, k)| (Some(d), k));
         res.wall_seconds = started.elapsed().as_secs_f64();
+        if let (Some(from), true) = (res.stepping_from, sim.steps > 0) {
+            res.seconds_per_step = from.elapsed().as_secs_f64() / sim.steps as f64;
+        }
         res
     }
 
-    fn summary(cfg: &DamBreakConfig, res: &DamBreakResult) -> DamBreakSummary {
-        DamBreakSummary {
+    fn summary(cfg: &SceneConfig<S>, res: &DamBreakResult) -> ColumnSummary<S> {
+        ColumnSummary {
             result: res.clone(),
             config: cfg.clone(),
         }
     }
 
-    fn tables(_cfg: &DamBreakConfig, res: &DamBreakResult) -> Vec<Table> {
+    fn tables(_cfg: &SceneConfig<S>, res: &DamBreakResult) -> Vec<Table> {
         vec![
             Table::pairs("front.csv", "T,Z", &res.front),
             Table::pairs("height.csv", "tau,H", &res.height),
@@ -312,72 +439,85 @@ impl Scene<2> for DamBreak {
     #[cfg(feature = "cli")]
     fn write_plots(
         dir: &std::path::Path,
-        cfg: &DamBreakConfig,
+        cfg: &SceneConfig<S>,
         res: &DamBreakResult,
-        sim: &Simulation<2, Walls<2>>,
+        sim: &Simulation<D, Walls<D>>,
     ) -> Result<(), crate::plot::PlotError> {
-        use crate::plot::{line_charts, particle_panels, Chart, ParticleView, Series, Snapshot};
-        let mm = crate::reference::martin_moyce();
-        let dev = |d: Option<f64>| d.map_or("–".to_string(), |d| format!("{:.1} %", 100.0 * d));
-        line_charts(
-            &dir.join("dam_break.png"),
-            1200,
-            520,
-            &[
-                (
-                    Chart {
-                        title: format!(
-                            "surge front, n = {}: mean deviation {} (1 ≤ T ≤ 3)",
-                            res.n,
-                            dev(res.front_deviation)
-                        ),
-                        x_label: "T = t √(2g/a)".into(),
-                        y_label: "Z = z/a".into(),
-                        ..Default::default()
-                    },
-                    vec![
-                        Series::line("gpm", res.front.clone()),
-                        Series::points("Martin & Moyce 1952", mm.front.clone()),
-                    ],
-                ),
-                (
-                    Chart {
-                        title: format!(
-                            "column height: mean deviation {} (τ ≤ 2)",
-                            dev(res.height_deviation)
-                        ),
-                        x_label: "τ = t √(g/a)".into(),
-                        y_label: "H = η/(2a)".into(),
-                        ..Default::default()
-                    },
-                    vec![
-                        Series::line("gpm", res.height.clone()),
-                        Series::points("Martin & Moyce 1952", mm.height.clone()),
-                    ],
-                ),
-            ],
-        )?;
-        let mut shots = res.pressure.clone();
-        let end = sim.time * (2.0 * cfg.scene.gravity).sqrt();
-        if shots.last().is_none_or(|s| (s.0 - end).abs() > 1e-9) {
-            shots.push(water_pressure(sim, end));
-        }
-        let shots: Vec<Snapshot> = shots
-            .into_iter()
-            .map(|(t, x, value)| Snapshot {
-                title: format!("T = t √(2g/a) = {t:.2}"),
-                x,
-                value,
-            })
-            .collect();
-        // a few particles' pressure spikes would leave the rest in one colour
-        let note = "1–99 % quantiles\nover the panels\n(beyond: end colours)";
-        let mut view = ParticleView::fit(&shots, "pressure p", note);
-        view.quantile_scale(&shots, 0.01);
-        view.include([0.0, 0.0], [cfg.scene.length, 2.0]);
-        let title = format!("dam break, n = {}: pressure", res.n);
-        particle_panels(&dir.join("pressure.png"), &title, &shots, 2, 560, &view)
+        write_plots::<D, S>(dir, cfg, res, sim)
     }
+}
+
+/// Writes `dam_break.png` (front and column height against Martin & Moyce) and `pressure.png`
+/// (the water coloured by pressure at T ≈ 0, 1, 2 and at the end; 3D: the mid-plane slab).
+#[cfg(feature = "cli")]
+fn write_plots<const D: usize, S: ColumnScene<D>>(
+    dir: &std::path::Path,
+    cfg: &SceneConfig<S>,
+    res: &DamBreakResult,
+    sim: &Simulation<D, Walls<D>>,
+) -> Result<(), crate::plot::PlotError> {
+    use crate::plot::{line_charts, particle_panels, Chart, ParticleView, Series, Snapshot};
+    let spec = cfg.scene.spec();
+    let mm = crate::reference::martin_moyce();
+    let dev = |d: Option<f64>| d.map_or("–".to_string(), |d| format!("{:.1} %", 100.0 * d));
+    let chart = |title: String, x: &str, y: &str, sim: &[(f64, f64)], exp: &[(f64, f64)]| {
+        let chart = Chart {
+            title,
+            x_label: x.into(),
+            y_label: y.into(),
+            ..Default::default()
+        };
+        let series = vec![
+            Series::line("gpm", sim.to_vec()),
+            Series::points("Martin & Moyce 1952", exp.to_vec()),
+        ];
+        (chart, series)
+    };
+    let front = format!(
+        "surge front, n = {}: mean deviation {} (1 ≤ T ≤ 3)",
+        res.n,
+        dev(res.front_deviation)
+    );
+    let height = format!(
+        "column height: mean deviation {} (τ ≤ 2)",
+        dev(res.height_deviation)
+    );
+    line_charts(
+        &dir.join("dam_break.png"),
+        1200,
+        520,
+        &[
+            chart(front, "T = t √(2g/a)", "Z = z/a", &res.front, &mm.front),
+            chart(
+                height,
+                "τ = t √(g/a)",
+                "H = η/(2a)",
+                &res.height,
+                &mm.height,
+            ),
+        ],
+    )?;
+    let mut shots = res.pressure.clone();
+    let end = sim.time * (2.0 * spec.gravity).sqrt();
+    if shots.last().is_none_or(|s| (s.0 - end).abs() > 1e-9) {
+        shots.push(water_pressure(sim, res.depth.unwrap_or(0.0), end));
+    }
+    let shots: Vec<Snapshot> = shots
+        .into_iter()
+        .map(|(t, x, value)| Snapshot {
+            title: format!("T = t √(2g/a) = {t:.2}"),
+            x,
+            value,
+        })
+        .collect();
+    // a few particles' pressure spikes would leave the rest in one colour
+    let note = "1–99 % quantiles\nover the panels\n(beyond: end colours)";
+    let mut view = ParticleView::fit(&shots, "pressure p", note);
+    view.quantile_scale(&shots, 0.01);
+    view.include([0.0, 0.0], [spec.length, 2.0]);
+    let plane = if D > 2 { ", mid-plane" } else { "" };
+    let title = format!("{}, n = {}: pressure{plane}", S::TITLE, res.n);
+    particle_panels(&dir.join("pressure.png"), &title, &shots, 2, 560, &view)
 }
 
 /// Runs a dam break to `t_end` through [`run_scene`].

@@ -19,6 +19,7 @@ pub mod cavity;
 pub mod channel;
 pub mod cube;
 pub mod dam_break;
+pub mod dam_break_3d;
 pub mod hydrostatic;
 pub mod manufactured;
 pub mod taylor_green;
@@ -1227,4 +1228,5 @@ registry! {
     2 => hydrostatic::Hydrostatic,
     2 => dam_break::DamBreak,
     3 => cube::Cube,
+    3 => dam_break_3d::DamBreak3d,
 }
