@@ -15,7 +15,9 @@
 //! by a Taylor expansion (Xu et al. 2009) with the derivatives before the shift: second order,
 //! `u += δ·∇u + ½ δᵀ(∇∇u)δ`, with the least-squares operators (the second derivatives as the
 //! least-squares gradients of the first, except in rows that see a wall ghost), first order
-//! with the GPM gradient otherwise.
+//! with the GPM gradient otherwise; the corrected velocity is kept within the range of the
+//! particle's and its neighbours' velocities before the move (a centred correction is an
+//! unlimited advection by the shift, unstable where the velocity jumps within `h`).
 
 use crate::boundary::Boundary;
 use crate::error::{Error, InputError};
@@ -149,6 +151,10 @@ pub(crate) struct ShiftScratch<const D: usize> {
     field_grad: Vec<[f64; D]>,
     /// Rows with a ghost neighbour (no second-order term there).
     near_wall: Vec<bool>,
+    /// Per particle and component: the smallest and largest velocity among the particle and
+    /// its neighbours within `h` before the move (ghosts at their wall point), the range the
+    /// Taylor-corrected velocity is kept in.
+    range: Vec<[[f64; 2]; D]>,
 }
 
 /// What [`advance_particles`] did.
@@ -316,6 +322,9 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             }
         }
     }
+    if correct_fick {
+        velocity_range(nl, &p.role, u, &mut s.range);
+    }
     for i in 0..n {
         if !moves(&p.role[i]) {
             continue;
@@ -344,6 +353,11 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
                 if second {
                     u[i][a] += quad(&s.hess[i][a]);
                 }
+                // no new extremum: the correction is an advection by the shift, and a centred
+                // one is unstable where the velocity jumps within h (the lid corners: a
+                // Lagrangian cavity at Re 1000 blew up there within 22 steps)
+                let [lo, hi] = s.range[i][a];
+                u[i][a] = u[i][a].clamp(lo, hi);
             }
             p.p[i] += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
             if second {
@@ -365,6 +379,39 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         max_shift,
         wall_pushes,
     })
+}
+
+/// `range[i][a] = [min, max]` of `u_a` over particle `i` and its neighbours within `h`, a
+/// ghost counted at its wall point (the mean of its value and its source's: the wall's
+/// velocity under the no-slip rule) — the bounds of a limited (Barth–Jespersen-type) remap.
+fn velocity_range<const D: usize>(
+    nl: &NeighborList<D>,
+    role: &[crate::particles::Role],
+    u: &[[f64; D]],
+    range: &mut Vec<[[f64; 2]; D]>,
+) {
+    let rows = nl.len();
+    range.resize(rows, [[0.0; 2]; D]);
+    range.par_iter_mut().enumerate().for_each(|(i, r)| {
+        *r = std::array::from_fn(|a| [u[i][a], u[i][a]]);
+        for k in nl.row(i) {
+            if nl.w()[k] <= 0.0 {
+                continue;
+            }
+            let j = nl.indices()[k] as usize;
+            let v: [f64; D] = match role[j] {
+                crate::particles::Role::Ghost { source, .. } => {
+                    let s = source as usize;
+                    std::array::from_fn(|a| 0.5 * (u[j][a] + u[s][a]))
+                }
+                _ => u[j],
+            };
+            for a in 0..D {
+                r[a][0] = r[a][0].min(v[a]);
+                r[a][1] = r[a][1].max(v[a]);
+            }
+        }
+    });
 }
 
 /// The second derivatives of the velocity and the pressure for the Taylor correction: the
