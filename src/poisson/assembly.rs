@@ -174,6 +174,148 @@ impl Assembly {
         true
     }
 
+    /// The Poisson matrix for the current pair data: [`Self::update_pattern`] then
+    /// [`Self::fill_values`], except that a pattern that follows the pairs within `h`
+    /// ([`Self::within_h`] with a skin: moving particles, a new pattern every step) is built
+    /// together with its values in one pass over the pairs (each row's entries collected,
+    /// sorted by column and merged; ghosts add to their source's column). Returns true when the
+    /// pattern was rebuilt.
+    pub fn update_poisson<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+    ) -> Result<bool, SolveError> {
+        self.update_with_values(nl, vol, role, 0.0, 1.0, None)
+    }
+
+    /// [`Self::update_poisson`] for the Helmholtz matrix of [`Self::fill_helmholtz`].
+    pub fn update_helmholtz<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        c: f64,
+        sigma: &[f64],
+    ) -> Result<bool, SolveError> {
+        self.update_with_values(nl, vol, role, 1.0, c, Some(sigma))
+    }
+
+    fn update_with_values<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        mass: f64,
+        c: f64,
+        sigma: Option<&[f64]>,
+    ) -> Result<bool, SolveError> {
+        let within_h = self.within_h && nl.config().skin > 0.0;
+        let key = (nl.epoch(), nl.generation(), role_hash(role));
+        let current = self.key == Some(key) && self.unknown.len() == role.len();
+        if !within_h || current {
+            let rebuilt = self.update_pattern(nl, role);
+            self.fill(nl, vol, role, mass, c, sigma)?;
+            return Ok(rebuilt);
+        }
+        let n = role.len();
+        self.unknown.clear();
+        self.unknown.resize(n, u32::MAX);
+        self.particle.clear();
+        for (i, r) in role.iter().enumerate() {
+            if r.is_fluid() {
+                self.unknown[i] = self.particle.len() as u32;
+                self.particle.push(i as u32);
+            }
+        }
+        let two_d = 2.0 * D as f64;
+        let unknown = &self.unknown;
+        let particle = &self.particle;
+        const CHUNK: usize = 256;
+        type Part = (Vec<u32>, Vec<u32>, Vec<f64>, Vec<u32>);
+        let parts: Vec<Part> = (0..particle.len())
+            .into_par_iter()
+            .step_by(CHUNK)
+            .map(|start| {
+                let end = (start + CHUNK).min(particle.len());
+                let mut lens = Vec::with_capacity(end - start);
+                let mut diag = Vec::with_capacity(end - start);
+                let mut cols = Vec::with_capacity((end - start) * 32);
+                let mut vals = Vec::with_capacity((end - start) * 32);
+                let mut row: Vec<(u32, f64)> = Vec::with_capacity(64);
+                for u in start..end {
+                    let p = particle[u] as usize;
+                    row.clear();
+                    let mut dsum = 0.0;
+                    for k in nl.row(p) {
+                        let j = nl.indices()[k] as usize;
+                        let a = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
+                        if a == 0.0 {
+                            continue;
+                        }
+                        let sg = sigma.map_or(1.0, |sg| sg[j]);
+                        match alias(role, j) {
+                            // a pair with its own image: (σ u_p + b − u_p)
+                            Some(s) if s == p => dsum += a * (1.0 - sg),
+                            Some(s) => {
+                                dsum += a;
+                                row.push((unknown[s], -a * sg));
+                            }
+                            None => dsum += a,
+                        }
+                    }
+                    row.push((u as u32, dsum + mass * vol[p]));
+                    // stable: duplicates (a source and its images) add in pair order, as in fill
+                    row.sort_by_key(|e| e.0);
+                    let first = cols.len();
+                    for &(c, v) in row.iter() {
+                        if cols.len() > first && *cols.last().expect("an entry") == c {
+                            *vals.last_mut().expect("an entry") += v;
+                        } else {
+                            cols.push(c);
+                            vals.push(v);
+                        }
+                    }
+                    let pos = cols[first..]
+                        .binary_search(&(u as u32))
+                        .expect("diagonal in pattern");
+                    lens.push((cols.len() - first) as u32);
+                    diag.push(pos as u32);
+                }
+                (lens, cols, vals, diag)
+            })
+            .collect();
+        self.offsets.clear();
+        self.offsets.push(0);
+        self.cols.clear();
+        self.values.clear();
+        let total: usize = parts.iter().map(|p| p.1.len()).sum();
+        self.cols.reserve(total);
+        self.values.reserve(total);
+        self.diag.clear();
+        for (lens, cols, vals, diag) in parts {
+            for (len, pos) in lens.into_iter().zip(diag) {
+                let base = *self.offsets.last().expect("offsets start at 0");
+                self.diag.push(base + pos as usize);
+                self.offsets.push(base + len as usize);
+            }
+            self.cols.extend_from_slice(&cols);
+            self.values.extend_from_slice(&vals);
+        }
+        self.key = Some(key);
+        self.pattern_id += 1;
+        self.values_reused = false;
+        self.values_key = self.reuse_values.then(|| ValuesKey {
+            pattern_id: self.pattern_id,
+            generation: nl.generation(),
+            vol: vol.to_vec(),
+            mass: mass.to_bits(),
+            c: c.to_bits(),
+            sigma: sigma.map(|s| s.to_vec()).unwrap_or_default(),
+        });
+        Ok(true)
+    }
+
     /// Fills the values of `K` for the current pair data (pattern must be up to date).
     pub fn fill_values<const D: usize>(
         &mut self,

@@ -135,10 +135,10 @@ impl HelmholtzSolver {
             }
         }
         self.assembly.within_h = params.pattern_within_h;
-        let pattern_rebuilt = self.assembly.update_pattern(nl, role);
         self.assembly.reuse_values = params.reuse_values;
-        self.assembly
-            .fill_helmholtz(nl, vol, role, c, &self.sigma)?;
+        let pattern_rebuilt = self
+            .assembly
+            .update_helmholtz(nl, vol, role, c, &self.sigma)?;
         let a = &self.assembly;
         let m = a.n();
         let two_d = 2.0 * D as f64;

@@ -365,7 +365,8 @@ impl PoissonSolver {
         params: &SolveParams,
     ) -> Result<bool, SolveError> {
         self.assembly.within_h = params.pattern_within_h;
-        let pattern_rebuilt = self.assembly.update_pattern(nl, role);
+        self.assembly.reuse_values = params.reuse_values;
+        let pattern_rebuilt = self.assembly.update_poisson(nl, vol, role)?;
         // moving particles: a new pattern every step, so the ordering's cost counts; nested
         // dissection on the particles' positions costs half of AMD's analysis for ~4 % more
         // fill (Lagrangian cavity n = 50: symbolic 2.8 -> 1.4 ms, numeric 2.9 -> 2.6 ms).
@@ -380,8 +381,6 @@ impl PoissonSolver {
                 .collect();
             self.direct.coordinates = Some((coords, D));
         }
-        self.assembly.reuse_values = params.reuse_values;
-        self.assembly.fill_values(nl, vol, role)?;
         Ok(pattern_rebuilt)
     }
 
