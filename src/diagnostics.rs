@@ -184,45 +184,80 @@ pub(crate) fn alias(role: &[Role], j: usize) -> Option<usize> {
 /// # Ok::<(), gpm::error::InputError>(())
 /// ```
 pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Components {
+    use std::sync::atomic::{AtomicU32, Ordering};
     let n = nl.len();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(p: &mut [u32], mut a: u32) -> u32 {
-        while p[a as usize] != a {
-            let g = p[p[a as usize] as usize];
-            p[a as usize] = g;
+    // a concurrent union-find (rows in parallel): a root is only ever linked under a smaller
+    // root, so every component's root is its smallest index whatever the order of the unions
+    // — the labels below are those of a sequential run
+    let parent: Vec<AtomicU32> = (0..n as u32).map(AtomicU32::new).collect();
+    fn find(p: &[AtomicU32], mut a: u32) -> u32 {
+        loop {
+            let pa = p[a as usize].load(Ordering::Acquire);
+            if pa == a {
+                return a;
+            }
+            let g = p[pa as usize].load(Ordering::Acquire);
+            if g == pa {
+                return pa;
+            }
+            // path halving; losing the race only skips a shortcut
+            let _ = p[a as usize].compare_exchange(pa, g, Ordering::AcqRel, Ordering::Acquire);
             a = g;
         }
-        a
     }
-    let mut touches = vec![false; n];
-    let mut has_nb = vec![false; n];
-    for i in 0..n {
-        if !role[i].is_fluid() {
-            continue;
-        }
-        for k in nl.row(i) {
-            let j = nl.indices()[k] as usize;
-            match alias(role, j) {
-                None => {
-                    touches[i] = true;
-                    has_nb[i] = true;
-                }
-                Some(s) if s != i => {
-                    has_nb[i] = true;
-                    let (a, b) = (find(&mut parent, i as u32), find(&mut parent, s as u32));
-                    if a != b {
-                        // union by smaller root id keeps labels deterministic
-                        if a < b {
-                            parent[b as usize] = a;
-                        } else {
-                            parent[a as usize] = b;
-                        }
-                    }
-                }
-                Some(_) => {}
+    fn union(p: &[AtomicU32], a: u32, b: u32) {
+        loop {
+            let (ra, rb) = (find(p, a), find(p, b));
+            if ra == rb {
+                return;
+            }
+            let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+            if p[hi as usize]
+                .compare_exchange(hi, lo, Ordering::AcqRel, Ordering::Acquire)
+                .is_ok()
+            {
+                return;
             }
         }
     }
+    // (touches a Dirichlet particle, has a neighbour) per row
+    let flags: Vec<(bool, bool)> = (0..n)
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|i| {
+            let (mut touches, mut has_nb) = (false, false);
+            if !role[i].is_fluid() {
+                return (touches, has_nb);
+            }
+            for k in nl.row(i) {
+                let j = nl.indices()[k] as usize;
+                match alias(role, j) {
+                    None => {
+                        touches = true;
+                        has_nb = true;
+                    }
+                    Some(s) if s != i => {
+                        has_nb = true;
+                        // each edge once (the list holds both directions, or a ghost of s)
+                        if s > i {
+                            union(&parent, i as u32, s as u32);
+                        }
+                    }
+                    Some(_) => {}
+                }
+            }
+            (touches, has_nb)
+        })
+        .collect();
+    let mut parent: Vec<u32> = parent.into_iter().map(AtomicU32::into_inner).collect();
+    let mut root = |mut a: usize| {
+        while parent[a] as usize != a {
+            let g = parent[parent[a] as usize];
+            parent[a] = g;
+            a = g as usize;
+        }
+        a
+    };
     let mut label = vec![u32::MAX; n];
     let mut root_to_comp = vec![u32::MAX; n];
     let mut anchored = Vec::new();
@@ -232,7 +267,7 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
         if !role[i].is_fluid() {
             continue;
         }
-        let r = find(&mut parent, i as u32) as usize;
+        let r = root(i);
         if root_to_comp[r] == u32::MAX {
             root_to_comp[r] = anchored.len() as u32;
             anchored.push(false);
@@ -241,10 +276,11 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
         let c = root_to_comp[r];
         label[i] = c;
         size[c as usize] += 1;
-        if touches[i] {
+        let (touches, has_nb) = flags[i];
+        if touches {
             anchored[c as usize] = true;
         }
-        if !has_nb[i] {
+        if !has_nb {
             isolated.push(i);
         }
     }
