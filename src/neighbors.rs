@@ -219,6 +219,28 @@ pub struct NeighborList<const D: usize> {
     epoch: u64,
     rebuilds: u64,
     generation: u64,
+    /// [`positions_hash`] of the positions the pair data were last measured at (0: none).
+    measured_at: u64,
+}
+
+/// A 64-bit fingerprint of `x` (FNV-1a over the bits, in parallel chunks combined in order:
+/// the same value on any thread count): the neighbour list records it when it measures the
+/// pairs, so that a check that the list belongs to these positions costs `O(N)`, not a pass
+/// over every pair ([`NeighborList::measured_at`]).
+pub fn positions_hash<const D: usize>(x: &[[f64; D]]) -> u64 {
+    const PRIME: u64 = 0x100000001b3;
+    let fnv = |h: u64, v: u64| (h ^ v).wrapping_mul(PRIME);
+    let parts: Vec<u64> = x
+        .par_chunks(4096)
+        .map(|c| {
+            c.iter()
+                .flatten()
+                .fold(0xcbf29ce484222325, |h, v| fnv(h, v.to_bits()))
+        })
+        .collect();
+    parts
+        .into_iter()
+        .fold(fnv(0xcbf29ce484222325, x.len() as u64), fnv)
 }
 
 impl<const D: usize> NeighborList<D> {
@@ -241,6 +263,7 @@ impl<const D: usize> NeighborList<D> {
             epoch: 0,
             rebuilds: 0,
             generation: 0,
+            measured_at: 0,
         })
     }
 
@@ -355,6 +378,11 @@ impl<const D: usize> NeighborList<D> {
     /// least-squares coefficients) cannot mistake one list for another.
     pub fn epoch(&self) -> u64 {
         self.epoch
+    }
+    /// [`positions_hash`] of the positions the pair data were measured at (0 before the first
+    /// measurement).
+    pub fn measured_at(&self) -> u64 {
+        self.measured_at
     }
     /// Changes whenever the pair data (`dx`, `r2`, `w`, `wr2`) are re-measured, i.e. whenever
     /// positions may have changed: consumers that derive values from the pair data (matrix
@@ -525,6 +553,7 @@ impl<const D: usize> NeighborList<D> {
     /// Re-measures the candidate pairs at positions `x` and keeps those with `r < h`.
     fn measure(&mut self, x: &[[f64; D]]) -> Result<(), InputError> {
         self.generation += 1;
+        self.measured_at = 0;
         let n = x.len();
         let h2 = self.config.h * self.config.h;
         let per = self.config.periodic;
@@ -625,6 +654,7 @@ impl<const D: usize> NeighborList<D> {
                 distance: 0.0,
             });
         }
+        self.measured_at = positions_hash(x);
         Ok(())
     }
 }

@@ -597,3 +597,21 @@ fn a_far_outlier_does_not_blow_the_cell_grid_up() {
         assert_eq!(nl.row(800).len(), 1, "{search:?}");
     }
 }
+
+/// The list records the fingerprint of the positions it measured (what the projection's check
+/// compares instead of every pair): equal for the same positions, different after a one-ulp move
+/// of one coordinate, and current again after `update`.
+#[test]
+fn the_list_records_the_positions_it_measured() {
+    use gpm::neighbors::positions_hash;
+    let x = random_cloud::<2>(20_000, 7);
+    let cfg = NeighborConfig::new(Weight::WendlandC2, 0.03, 0.01);
+    let mut nl = NeighborList::build(cfg, &x).unwrap();
+    assert_eq!(nl.measured_at(), positions_hash(&x));
+    assert_ne!(nl.measured_at(), 0);
+    let mut y = x.clone();
+    y[12_345][1] = f64::from_bits(y[12_345][1].to_bits() + 1);
+    assert_ne!(positions_hash(&y), positions_hash(&x));
+    nl.update(&y).unwrap();
+    assert_eq!(nl.measured_at(), positions_hash(&y));
+}

@@ -165,6 +165,10 @@ pub fn check_neighbors<const D: usize>(
             ),
         });
     }
+    // the list recorded the positions it measured: equal fingerprints, nothing to compare
+    if nl.measured_at() != 0 && nl.measured_at() == crate::neighbors::positions_hash(x) {
+        return Ok(());
+    }
     let bad = (0..x.len()).into_par_iter().find_first(|&i| {
         nl.row(i).any(|k| {
             let j = nl.indices()[k] as usize;
