@@ -91,6 +91,39 @@ impl Assembly {
         self.pattern_id
     }
 
+    /// Numbers the fluid particles as unknowns, in particle order.
+    fn number_unknowns(&mut self, role: &[Role]) {
+        self.unknown.clear();
+        self.unknown.resize(role.len(), u32::MAX);
+        self.particle.clear();
+        for (i, r) in role.iter().enumerate() {
+            if r.is_fluid() {
+                self.unknown[i] = self.particle.len() as u32;
+                self.particle.push(i as u32);
+            }
+        }
+    }
+
+    /// Empties the rows, reserving `entries` columns.
+    fn clear_rows(&mut self, entries: usize) {
+        self.offsets.clear();
+        self.offsets.push(0);
+        self.cols.clear();
+        self.cols.reserve(entries);
+        self.diag.clear();
+    }
+
+    /// Appends rows built by one chunk: their lengths, the diagonal's position within each row
+    /// and their columns, concatenated.
+    fn append_rows(&mut self, lens: &[u32], diag: &[u32], cols: &[u32]) {
+        for (&len, &pos) in lens.iter().zip(diag) {
+            let base = *self.offsets.last().expect("offsets start at 0");
+            self.diag.push(base + pos as usize);
+            self.offsets.push(base + len as usize);
+        }
+        self.cols.extend_from_slice(cols);
+    }
+
     /// Rebuilds the pattern when the candidate pairs or the roles changed; returns true if it did.
     pub fn update_pattern<const D: usize>(&mut self, nl: &NeighborList<D>, role: &[Role]) -> bool {
         // with a skin, the pairs within h change with the pair data, not only with the list
@@ -100,15 +133,7 @@ impl Assembly {
         if self.key == Some(key) && self.unknown.len() == role.len() {
             return false;
         }
-        let n = role.len();
-        self.unknown = vec![u32::MAX; n];
-        self.particle.clear();
-        for (i, r) in role.iter().enumerate() {
-            if r.is_fluid() {
-                self.unknown[i] = self.particle.len() as u32;
-                self.particle.push(i as u32);
-            }
-        }
+        self.number_unknowns(role);
         // the candidates' pattern (stable while the list is not searched again), or the
         // pairs within h of the current pair data
         let (co, ci) = nl.pattern();
@@ -155,18 +180,9 @@ impl Assembly {
                 (lens, cols, diag)
             })
             .collect();
-        self.offsets = Vec::with_capacity(particle.len() + 1);
-        self.offsets.push(0);
-        self.cols.clear();
-        self.cols.reserve(parts.iter().map(|p| p.1.len()).sum());
-        self.diag.clear();
+        self.clear_rows(parts.iter().map(|p| p.1.len()).sum());
         for (lens, cols, diag) in parts {
-            for (len, pos) in lens.into_iter().zip(diag) {
-                let base = *self.offsets.last().expect("offsets start at 0");
-                self.diag.push(base + pos as usize);
-                self.offsets.push(base + len as usize);
-            }
-            self.cols.extend_from_slice(&cols);
+            self.append_rows(&lens, &diag, &cols);
         }
         self.values = vec![0.0; self.cols.len()];
         self.key = Some(key);
@@ -218,16 +234,7 @@ impl Assembly {
             self.fill(nl, vol, role, mass, c, sigma)?;
             return Ok(rebuilt);
         }
-        let n = role.len();
-        self.unknown.clear();
-        self.unknown.resize(n, u32::MAX);
-        self.particle.clear();
-        for (i, r) in role.iter().enumerate() {
-            if r.is_fluid() {
-                self.unknown[i] = self.particle.len() as u32;
-                self.particle.push(i as u32);
-            }
-        }
+        self.number_unknowns(role);
         let two_d = 2.0 * D as f64;
         let unknown = &self.unknown;
         let particle = &self.particle;
@@ -285,21 +292,12 @@ impl Assembly {
                 (lens, cols, vals, diag)
             })
             .collect();
-        self.offsets.clear();
-        self.offsets.push(0);
-        self.cols.clear();
-        self.values.clear();
         let total: usize = parts.iter().map(|p| p.1.len()).sum();
-        self.cols.reserve(total);
+        self.clear_rows(total);
+        self.values.clear();
         self.values.reserve(total);
-        self.diag.clear();
         for (lens, cols, vals, diag) in parts {
-            for (len, pos) in lens.into_iter().zip(diag) {
-                let base = *self.offsets.last().expect("offsets start at 0");
-                self.diag.push(base + pos as usize);
-                self.offsets.push(base + len as usize);
-            }
-            self.cols.extend_from_slice(&cols);
+            self.append_rows(&lens, &diag, &cols);
             self.values.extend_from_slice(&vals);
         }
         self.key = Some(key);
