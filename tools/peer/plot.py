@@ -80,7 +80,7 @@ def main():
             for r in rs:
                 ax.annotate(f'n={r["n"]}', (r[key], 100 * r['error']),
                             textcoords='offset points', xytext=(5, 4), fontsize=8)
-        ax.set_xlabel('wall time [s] (2 cores, shared with other jobs)' if key == 'wall_seconds'
+        ax.set_xlabel('wall time [s] (2 cores; see the README for the load)' if key == 'wall_seconds'
                       else 'CPU time, user + system, all threads [s]')
         ax.set_ylabel('error [%]')
         ax.set_title(titles[case], fontsize=10)

@@ -152,9 +152,10 @@ if [ "$quick" = 1 ]; then
 else
     # extra gpm points for the error–time lines (cheap): Taylor–Green at n = 30 and 70; the
     # Lagrangian cavity stopped at PySPH's end time t = 10 (not steady by gpm's rule there; at
-    # n = 30 that rule fires only at t = 32.5, later than at n = 50)
+    # n = 30 that rule fires only at t = 17.5, later than at n = 50); n = 26 is the coarsest
+    # that holds to t = 10 (n = 24 stops at t = 9.6 at the top-left lid corner, issue 13)
     extra_tg=(30 70)
-    extra_cavity=(30 40)
+    extra_cavity=(26 28 30)
 fi
 
 for n in "${tg_n[@]}"; do
