@@ -908,3 +908,156 @@ fn nested_dissection_orders_every_unknown_once_and_factorises_like_amd() {
         "solutions differ by {diff:e} (scale {scale:e})"
     );
 }
+
+/// A jittered lattice in the unit box with the mirror images of a cavity's walls (no-slip or
+/// free-slip), its neighbour list with a skin, and each ghost's velocity sign per component.
+fn walled_box(free_slip: bool) -> (gpm::particles::Particles<2>, NeighborList<2>, Vec<[f64; 2]>) {
+    use gpm::boundary::{Boundary, Walls};
+    use gpm::neighbors::NeighborConfig;
+    let n = 24;
+    let dx = 1.0 / n as f64;
+    let h = 3.0 * dx;
+    let mut p = gpm::particles::Particles::new();
+    for (k, x) in gpm::geometry::lattice([0.5 * dx; 2], [1.0; 2], dx)
+        .into_iter()
+        .enumerate()
+    {
+        let a = 1.3 * k as f64;
+        let x = [x[0] + 0.2 * dx * a.sin(), x[1] + 0.2 * dx * a.cos()];
+        p.push(x, [0.0; 2], 0.0, dx * dx, Role::Fluid);
+    }
+    let walls = if free_slip {
+        Walls::cavity(1.0, 1.0).free_slip()
+    } else {
+        Walls::cavity(1.0, 1.0)
+    };
+    let config = NeighborConfig::new(Weight::WendlandC2, h, 0.3 * h);
+    walls.make_ghosts(&mut p, h + 0.3 * h);
+    let nl = NeighborList::build(config, &p.x).unwrap();
+    let sigma = p
+        .role
+        .iter()
+        .map(|r| match r {
+            Role::Ghost { walls: w, .. } => walls.velocity_affine(*w).0,
+            _ => [1.0; 2],
+        })
+        .collect();
+    (p, nl, sigma)
+}
+
+#[test]
+fn the_viscous_matrix_derived_from_the_poisson_matrix_is_the_assembled_one() {
+    // H = W + c K_σ built from the pairs, and derived from K of the same configuration
+    // (Assembly::helmholtz_from, what moving particles use): same pattern, same values to
+    // rounding, for no-slip images (σ = −1 across a wall, +1 at a corner, self-images on the
+    // diagonal) and for free-slip ones (σ per component)
+    let c = 0.37;
+    for free_slip in [false, true] {
+        let (p, nl, signs) = walled_box(free_slip);
+        assert!(p.role.iter().any(|r| matches!(r, Role::Ghost { .. })));
+        let mut k = Assembly::default();
+        k.within_h = true;
+        k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+        for d in 0..2 {
+            let sigma: Vec<f64> = signs.iter().map(|s| s[d]).collect();
+            assert!(sigma.iter().any(|&s| s == -1.0));
+            let mut built = Assembly::default();
+            built.within_h = true;
+            built
+                .update_helmholtz(&nl, &p.vol, &p.role, c, &sigma)
+                .unwrap();
+            let mut derived = Assembly::default();
+            let rebuilt = derived
+                .helmholtz_from(&k, &nl, &p.vol, &p.role, 1.0, c, &sigma)
+                .expect("K belongs to this configuration");
+            assert!(rebuilt, "the first derivation copies the pattern");
+            assert_eq!(built.offsets, derived.offsets);
+            assert_eq!(built.cols, derived.cols);
+            assert_eq!(built.diag, derived.diag);
+            let scale = built.values.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            let diff = built
+                .values
+                .iter()
+                .zip(&derived.values)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(
+                diff <= 1e-14 * scale,
+                "free_slip {free_slip}, component {d}: {diff:e} of {scale:e}"
+            );
+            // a second derivation for the same K keeps the pattern
+            let again = derived
+                .helmholtz_from(&k, &nl, &p.vol, &p.role, 1.0, c, &sigma)
+                .unwrap();
+            assert!(!again);
+        }
+    }
+    // a K of another configuration is refused: the particles moved, the pairs were re-measured
+    let (mut p, mut nl, signs) = walled_box(false);
+    let mut k = Assembly::default();
+    k.within_h = true;
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    for x in p.x.iter_mut() {
+        x[0] += 1e-3;
+    }
+    nl.update(&p.x).unwrap();
+    let sigma: Vec<f64> = signs.iter().map(|s| s[0]).collect();
+    let mut derived = Assembly::default();
+    assert!(derived
+        .helmholtz_from(&k, &nl, &p.vol, &p.role, 1.0, c, &sigma)
+        .is_none());
+}
+
+#[test]
+fn cg_on_several_right_sides_at_once_equals_cg_on_each() {
+    use gpm::poisson::iterative::{pcg, pcg_multi};
+    let (p, nl, signs) = walled_box(false);
+    let sigma: Vec<f64> = signs.iter().map(|s| s[0]).collect();
+    let mut h = Assembly::default();
+    h.within_h = true;
+    h.update_helmholtz(&nl, &p.vol, &p.role, 0.05, &sigma)
+        .unwrap();
+    let m = h.n();
+    let b0: Vec<f64> = (0..m).map(|i| (0.37 * i as f64).sin()).collect();
+    let b1: Vec<f64> = (0..m).map(|i| 1.0 + (0.11 * i as f64).cos()).collect();
+    let b2 = vec![0.0; m];
+    let guess = |s: f64| -> Vec<f64> { (0..m).map(|i| s * (i % 7) as f64).collect() };
+    for (rel_tol, max_iters) in [(1e-10, 1000), (1e-3, 1000)] {
+        let (mut x0, mut x1, mut x2) = (guess(0.1), guess(-0.2), guess(0.3));
+        let multi = pcg_multi(
+            &h,
+            [&b0, &b1, &b2],
+            [&mut x0, &mut x1, &mut x2],
+            rel_tol,
+            0.0,
+            max_iters,
+        )
+        .unwrap();
+        for (c, (b, x)) in [(&b0, &x0), (&b1, &x1), (&b2, &x2)].into_iter().enumerate() {
+            let mut y = guess([0.1, -0.2, 0.3][c]);
+            let one = pcg(&h, b, &mut y, rel_tol, 0.0, max_iters).unwrap();
+            assert_eq!(multi[c].iters, one.iters, "column {c}, tol {rel_tol}");
+            let diff = x
+                .iter()
+                .zip(&y)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            let scale = y.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-300);
+            assert!(diff <= 1e-12 * scale.max(1.0), "column {c}: {diff:e}");
+            assert!(
+                (multi[c].abs_residual - one.abs_residual).abs()
+                    <= 1e-9 * one.abs_residual.max(1e-30),
+                "{:?} vs {one:?}",
+                multi[c]
+            );
+        }
+        assert!(x2.iter().all(|&v| v == 0.0), "a zero right side gives zero");
+    }
+    // the iteration limit is reported per column, like pcg's
+    let (mut x0, mut x1) = (vec![0.0; m], vec![0.0; m]);
+    let err = pcg_multi(&h, [&b0, &b1], [&mut x0, &mut x1], 1e-14, 0.0, 1).unwrap_err();
+    assert!(
+        matches!(err, SolveError::NoConvergence { iters: 1, .. }),
+        "{err:?}"
+    );
+}

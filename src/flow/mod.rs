@@ -667,18 +667,24 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             // −½(∇pⁿ|xⁿ + ∇pⁿ|xⁿ⁺¹)/ρ: the predictor applies the second term in full, this
             // adds ½(∇pⁿ|xⁿ⁺¹ − ∇pⁿ|xⁿ)/ρ (with −∇p at the new positions alone, the velocity
             // of a particle that crosses the pressure field is first order in time)
+            // (∇pⁿ|xⁿ⁺¹ is also the predictor's own pressure term: it is handed over, not
+            // computed twice)
+            let gnew = self.projection.pressure_gradient_for_predictor(
+                &mut self.particles,
+                &self.nl,
+                &self.boundary,
+                &self.params.projection,
+            );
             let mut g = std::mem::take(&mut self.extra_accel);
-            self.pressure_gradient_into(&mut g);
-            for (i, gi) in g.iter_mut().enumerate() {
+            g.clear();
+            g.extend(gnew.iter().enumerate().map(|(i, gi)| {
                 // fluid particles keep their index; ghosts are regenerated
                 let old = match self.old_pressure_grad.get(i) {
                     Some(o) if self.particles.role[i].is_fluid() => *o,
                     _ => *gi,
                 };
-                for k in 0..D {
-                    gi[k] = 0.5 * (gi[k] - old[k]);
-                }
-            }
+                std::array::from_fn(|k| 0.5 * (gi[k] - old[k]))
+            }));
             self.extra_accel = g;
             Some(&self.extra_accel[..])
         } else {

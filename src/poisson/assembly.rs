@@ -24,6 +24,9 @@ pub struct Assembly {
     key: Option<(u64, u64, u64)>,
     values_key: Option<ValuesKey>,
     pattern_id: u64,
+    /// The pattern id of the Poisson matrix this one's pattern was copied from
+    /// ([`Self::helmholtz_from`]).
+    derived_from: Option<u64>,
     /// Unknown index of each particle (`u32::MAX` when the particle is not an unknown).
     pub unknown: Vec<u32>,
     /// Particle index of each unknown.
@@ -187,6 +190,7 @@ impl Assembly {
         self.values = vec![0.0; self.cols.len()];
         self.key = Some(key);
         self.pattern_id += 1;
+        self.derived_from = None;
         true
     }
 
@@ -215,6 +219,97 @@ impl Assembly {
         sigma: &[f64],
     ) -> Result<bool, SolveError> {
         self.update_with_values(nl, vol, role, 1.0, c, Some(sigma))
+    }
+
+    /// The Helmholtz matrix of [`Self::update_helmholtz`] derived from the Poisson matrix `k`
+    /// of the same configuration instead of from the pairs: the same pattern (copied when `k`'s
+    /// changed), `c` times `k`'s values, `mass ω_i` added on the diagonal, and for every image
+    /// `g` of a fluid source `s` with `σ_g ≠ 1` the difference `c a_ig (1 − σ_g)` added at
+    /// column `s` (`−c a σ` where `K` has `−a`; on the diagonal when `s` is the row's own
+    /// particle). One pass over the entries, plus one over the pairs when some `σ ≠ 1`, where
+    /// the builder needs a pass over the pairs, a sort and a merge (moving particles, whose two
+    /// matrices change every step: 24 → ≈ 4 ms at 2D 10⁵). Returns `None`, changing nothing,
+    /// when `k`'s pattern is not the one of `nl`'s current pairs and `role` (the caller must
+    /// also have assembled `k` from the same `vol`); otherwise whether the pattern changed.
+    #[allow(clippy::too_many_arguments)]
+    pub fn helmholtz_from<const D: usize>(
+        &mut self,
+        k: &Assembly,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        mass: f64,
+        c: f64,
+        sigma: &[f64],
+    ) -> Option<bool> {
+        let within_h = k.within_h && nl.config().skin > 0.0;
+        let generation = if within_h { nl.generation() } else { 0 };
+        let key = (nl.epoch(), generation, role_hash(role));
+        if k.key != Some(key) || k.unknown.len() != role.len() || k.values.len() != k.cols.len() {
+            return None;
+        }
+        let rebuilt = self.key != k.key
+            || self.cols.len() != k.cols.len()
+            || self.derived_from != Some(k.pattern_id);
+        if rebuilt {
+            self.unknown.clone_from(&k.unknown);
+            self.particle.clone_from(&k.particle);
+            self.offsets.clone_from(&k.offsets);
+            self.cols.clone_from(&k.cols);
+            self.diag.clone_from(&k.diag);
+            self.key = k.key;
+            self.pattern_id += 1;
+            self.derived_from = Some(k.pattern_id);
+        }
+        self.values_key = None;
+        self.values_reused = false;
+        self.values.resize(k.values.len(), 0.0);
+        let two_d = 2.0 * D as f64;
+        let corrected = sigma.iter().any(|&s| s != 1.0);
+        let n = self.n();
+        const CHUNK: usize = 256;
+        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
+            .map(|ch| self.offsets[(ch * CHUNK).min(n)])
+            .collect();
+        let parts = split_by(&mut self.values, &bounds);
+        let (offsets, cols, diag, particle, unknown) = (
+            &self.offsets,
+            &self.cols,
+            &self.diag,
+            &self.particle,
+            &self.unknown,
+        );
+        parts.into_par_iter().enumerate().for_each(|(ch, vals)| {
+            let base = offsets[(ch * CHUNK).min(n)];
+            let kv = &k.values[base..base + vals.len()];
+            for (v, kv) in vals.iter_mut().zip(kv) {
+                *v = c * kv;
+            }
+            for u in ch * CHUNK..((ch + 1) * CHUNK).min(n) {
+                let p = particle[u] as usize;
+                vals[diag[u] - base] += mass * vol[p];
+                if !corrected {
+                    continue;
+                }
+                let row = &cols[offsets[u]..offsets[u + 1]];
+                for e in nl.row(p) {
+                    let j = nl.indices()[e] as usize;
+                    let sg = sigma[j];
+                    if sg == 1.0 || !matches!(role[j], Role::Ghost { .. }) {
+                        continue;
+                    }
+                    let Some(s) = alias(role, j) else { continue };
+                    let a = c * two_d * vol[p] * vol[j] * nl.wr2()[e];
+                    if a == 0.0 {
+                        continue;
+                    }
+                    if let Ok(pos) = row.binary_search(&unknown[s]) {
+                        vals[offsets[u] + pos - base] += a * (1.0 - sg);
+                    }
+                }
+            }
+        });
+        Some(rebuilt)
     }
 
     fn update_with_values<const D: usize>(
@@ -302,6 +397,7 @@ impl Assembly {
         }
         self.key = Some(key);
         self.pattern_id += 1;
+        self.derived_from = None;
         self.values_reused = false;
         self.values_key = self.reuse_values.then(|| ValuesKey {
             pattern_id: self.pattern_id,

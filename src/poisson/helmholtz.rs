@@ -10,12 +10,13 @@
 use super::amg::{AmgCache, AmgSetup};
 use super::assembly::Assembly;
 use super::direct::Direct;
-use super::iterative::{pcg, pcg_with, CgInfo};
+use super::iterative::{pcg, pcg_multi, pcg_with, CgInfo};
 use super::{SolveInfo, SolveParams, SolverKind};
 use crate::diagnostics::alias;
 use crate::error::SolveError;
 use crate::neighbors::NeighborList;
 use crate::particles::Role;
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// Reusable state of the implicit viscous solve.
@@ -32,6 +33,8 @@ pub struct HelmholtzSolver {
     sigma: Vec<f64>,
     /// `Auto`: numeric Cholesky factorisations caused by changed values.
     auto_factorisations: u32,
+    /// Set by [`Self::assume_moving`].
+    moving: bool,
 }
 
 impl HelmholtzSolver {
@@ -45,6 +48,13 @@ impl HelmholtzSolver {
     /// refactorisations have shown it.
     pub fn assume_moving(&mut self) {
         self.auto_factorisations = self.auto_factorisations.max(2);
+        self.moving = true;
+    }
+
+    /// True after [`Self::assume_moving`]: the matrix changes at every solve, so deriving it
+    /// from the step's Poisson matrix ([`Assembly::helmholtz_from`]) pays.
+    pub fn is_moving(&self) -> bool {
+        self.moving
     }
 
     /// Solves `u_i − c Δh u_i = r_i` at the fluid particles for each component. `ghost_rule(j)`
@@ -65,6 +75,25 @@ impl HelmholtzSolver {
         u: &mut [[f64; D]],
         params: &SolveParams,
     ) -> Result<SolveInfo, SolveError> {
+        self.solve_with_poisson(None, nl, vol, role, ghost_rule, c, r, u, params)
+    }
+
+    /// [`Self::solve`] with `poisson`, the Poisson matrix assembled for the same pairs, volumes
+    /// and roles: the matrix is then derived from it ([`Assembly::helmholtz_from`]) rather than
+    /// from the pairs (`None`, or a `poisson` of another configuration: from the pairs).
+    #[allow(clippy::too_many_arguments)]
+    pub fn solve_with_poisson<const D: usize>(
+        &mut self,
+        poisson: Option<&Assembly>,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        ghost_rule: &dyn Fn(usize) -> ([f64; D], [f64; D]),
+        c: f64,
+        r: &[[f64; D]],
+        u: &mut [[f64; D]],
+        params: &SolveParams,
+    ) -> Result<SolveInfo, SolveError> {
         let uniform = (0..role.len())
             .filter(|&j| matches!(role[j], Role::Ghost { .. }))
             .all(|j| {
@@ -72,11 +101,22 @@ impl HelmholtzSolver {
                 s.iter().all(|&v| v == s[0])
             });
         if uniform {
-            return self.solve_group(nl, vol, role, ghost_rule, c, r, u, params, 0..D);
+            return self.solve_group(poisson, nl, vol, role, ghost_rule, c, r, u, params, 0..D);
         }
         let mut total: Option<SolveInfo> = None;
         for d in 0..D {
-            let info = self.solve_group(nl, vol, role, ghost_rule, c, r, u, params, d..d + 1)?;
+            let info = self.solve_group(
+                poisson,
+                nl,
+                vol,
+                role,
+                ghost_rule,
+                c,
+                r,
+                u,
+                params,
+                d..d + 1,
+            )?;
             total = Some(match total {
                 None => info,
                 Some(t) => SolveInfo {
@@ -103,6 +143,7 @@ impl HelmholtzSolver {
     #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
     fn solve_group<const D: usize>(
         &mut self,
+        poisson: Option<&Assembly>,
         nl: &NeighborList<D>,
         vol: &[f64],
         role: &[Role],
@@ -136,30 +177,40 @@ impl HelmholtzSolver {
         }
         self.assembly.within_h = params.pattern_within_h;
         self.assembly.reuse_values = params.reuse_values;
-        let pattern_rebuilt = self
-            .assembly
-            .update_helmholtz(nl, vol, role, c, &self.sigma)?;
+        let derived = poisson.and_then(|k| {
+            self.assembly
+                .helmholtz_from(k, nl, vol, role, 1.0, c, &self.sigma)
+        });
+        let pattern_rebuilt = match derived {
+            Some(rebuilt) => rebuilt,
+            None => self
+                .assembly
+                .update_helmholtz(nl, vol, role, c, &self.sigma)?,
+        };
         let a = &self.assembly;
         let m = a.n();
         let two_d = 2.0 * D as f64;
-        // constant parts: c ω_i ω_j a_ij b_j over ghost and Dirichlet neighbours
+        // constant parts: c ω_i ω_j a_ij b_j over ghost and Dirichlet neighbours (none in a
+        // periodic box: the pass is skipped)
+        let has_const = role.iter().any(|r| !r.is_fluid());
         let mut rhs_const: Vec<[f64; D]> = vec![[0.0; D]; m];
-        for (uix, &p) in a.particle.iter().enumerate() {
-            let p = p as usize;
-            for k in nl.row(p) {
-                let j = nl.indices()[k] as usize;
-                let is_const = match role[j] {
-                    Role::Ghost { .. } => true,
-                    Role::Dirichlet => true,
-                    Role::Fluid => false,
-                };
-                if is_const {
-                    let w = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
-                    for d in comps.clone() {
-                        rhs_const[uix][d] += w * consts[j][d];
+        if has_const {
+            rhs_const
+                .par_iter_mut()
+                .zip(a.particle.par_iter())
+                .with_min_len(1024)
+                .for_each(|(out, &p)| {
+                    let p = p as usize;
+                    for k in nl.row(p) {
+                        let j = nl.indices()[k] as usize;
+                        if !role[j].is_fluid() {
+                            let w = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
+                            for d in comps.clone() {
+                                out[d] += w * consts[j][d];
+                            }
+                        }
                     }
-                }
-            }
+                });
         }
         let assemble_seconds = t0.elapsed().as_secs_f64();
         // Auto: as for the Poisson problem, Cholesky in 2D up to the limit while its factor is
@@ -223,6 +274,31 @@ impl HelmholtzSolver {
                     info.numeric_seconds += ri.numeric_seconds;
                     info.solve_seconds += ri.solve_seconds;
                 }
+            }
+            SolverKind::Cg if comps.len() == D && D > 1 => {
+                // every component at once: one pass over the matrix per product for all
+                let t = Instant::now();
+                for d in comps.clone() {
+                    let x = &mut self.x[d * m..(d + 1) * m];
+                    for (uix, &p) in a.particle.iter().enumerate() {
+                        x[uix] = if params.warm_start {
+                            u[p as usize][d]
+                        } else {
+                            0.0
+                        };
+                    }
+                }
+                let mut xs = self.x.chunks_mut(m);
+                let xs: [&mut [f64]; D] =
+                    std::array::from_fn(|_| xs.next().expect("one column per component"));
+                let bs: [&[f64]; D] = std::array::from_fn(|d| &self.b[d * m..(d + 1) * m]);
+                let infos = pcg_multi(a, bs, xs, params.rel_tol, params.abs_tol, params.max_iters)?;
+                for ri in infos {
+                    info.iters += ri.iters;
+                    info.abs_residual = info.abs_residual.max(ri.abs_residual);
+                    info.rel_residual = info.rel_residual.max(ri.rel_residual);
+                }
+                info.solve_seconds = t.elapsed().as_secs_f64();
             }
             SolverKind::Cg | SolverKind::Amg => {
                 let reuse = params.amg_reuse();

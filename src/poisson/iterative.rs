@@ -127,6 +127,197 @@ fn converged(
     }
 }
 
+/// `q_c = K p_c` for the `K` interleaved columns of `p`, returning every `p_c·q_c`, in one pass
+/// over the matrix.
+fn matvec_dot_multi<const K: usize>(a: &Assembly, p: &[[f64; K]], q: &mut [[f64; K]]) -> [f64; K] {
+    q.par_iter_mut()
+        .with_min_len(MIN_LEN)
+        .with_max_len(MIN_LEN)
+        .enumerate()
+        .map(|(u, qu)| {
+            let mut s = [0.0; K];
+            for k in a.offsets[u]..a.offsets[u + 1] {
+                let (v, pc) = (a.values[k], &p[a.cols[k] as usize]);
+                for c in 0..K {
+                    s[c] += v * pc[c];
+                }
+            }
+            *qu = s;
+            std::array::from_fn(|c| s[c] * p[u][c])
+        })
+        .reduce(|| [0.0; K], |x, y| std::array::from_fn(|c| x[c] + y[c]))
+}
+
+/// `‖b_c − K x_c‖₂` of every column, in one pass over the matrix.
+fn true_residuals<const K: usize>(a: &Assembly, b: &[&[f64]; K], x: &[[f64; K]]) -> [f64; K] {
+    let s = (0..a.n())
+        .into_par_iter()
+        .with_min_len(MIN_LEN)
+        .with_max_len(MIN_LEN)
+        .map(|u| {
+            let mut kx = [0.0; K];
+            for k in a.offsets[u]..a.offsets[u + 1] {
+                let (v, xc) = (a.values[k], &x[a.cols[k] as usize]);
+                for c in 0..K {
+                    kx[c] += v * xc[c];
+                }
+            }
+            std::array::from_fn(|c| (b[c][u] - kx[c]).powi(2))
+        })
+        .reduce(|| [0.0; K], |x, y| std::array::from_fn(|c| x[c] + y[c]));
+    s.map(f64::sqrt)
+}
+
+/// [`pcg`] (Jacobi-preconditioned CG) on `K` right sides at once: each column keeps its own
+/// recurrence, stopping test and report, while every product reads the matrix once for all
+/// of them (the implicit viscous solve of moving particles, one column per velocity
+/// component, whose matrix changes every step and whose solves take one or two iterations:
+/// the products dominate). Equal to [`pcg`] on each column up to rounding. `x` holds the
+/// initial guesses on entry.
+pub fn pcg_multi<const K: usize>(
+    a: &Assembly,
+    b: [&[f64]; K],
+    x: [&mut [f64]; K],
+    rel_tol: f64,
+    abs_tol: f64,
+    max_iters: usize,
+) -> Result<[CgInfo; K], SolveError> {
+    let n = a.n();
+    let inv_diag = inv_diagonal(a);
+    let bnorm: [f64; K] = std::array::from_fn(|c| sum_squares(b[c]).sqrt());
+    let tol: [f64; K] = std::array::from_fn(|c| abs_tol.max(rel_tol * bnorm[c]));
+    let mut xs: Vec<[f64; K]> = (0..n).map(|i| std::array::from_fn(|c| x[c][i])).collect();
+    for c in 0..K {
+        if bnorm[c] == 0.0 {
+            xs.iter_mut().for_each(|v| v[c] = 0.0);
+        }
+    }
+    let mut r = vec![[0.0; K]; n];
+    matvec_dot_multi(a, &xs, &mut r);
+    r.par_iter_mut()
+        .enumerate()
+        .with_min_len(MIN_LEN)
+        .for_each(|(i, ri)| {
+            for c in 0..K {
+                ri[c] = b[c][i] - ri[c];
+            }
+        });
+    let mut z: Vec<[f64; K]> = r
+        .iter()
+        .zip(&inv_diag)
+        .map(|(r, m)| r.map(|v| v * m))
+        .collect();
+    let mut p = z.clone();
+    let mut q = vec![[0.0; K]; n];
+    let sums = |u: &[[f64; K]], v: &[[f64; K]]| -> [f64; K] {
+        u.par_iter()
+            .zip(v.par_iter())
+            .with_min_len(MIN_LEN)
+            .with_max_len(MIN_LEN)
+            .map(|(a, b)| std::array::from_fn(|c| a[c] * b[c]))
+            .reduce(|| [0.0; K], |x, y| std::array::from_fn(|c| x[c] + y[c]))
+    };
+    let mut rz = sums(&r, &z);
+    let mut rnorm = sums(&r, &r).map(f64::sqrt);
+    let r0 = rnorm;
+    // a column is active until it has converged (or has a zero right side)
+    let mut active: [bool; K] = std::array::from_fn(|c| bnorm[c] > 0.0 && rnorm[c] > tol[c]);
+    let mut iters = [0usize; K];
+    while active.iter().any(|&a| a) {
+        for c in 0..K {
+            if active[c] && iters[c] >= max_iters {
+                let true_r = true_residuals(a, &b, &xs)[c];
+                return Err(SolveError::NoConvergence {
+                    iters: iters[c],
+                    abs_residual: true_r,
+                    rel_residual: true_r / bnorm[c],
+                });
+            }
+        }
+        let pq = matvec_dot_multi(a, &p, &mut q);
+        let mut alpha = [0.0; K];
+        for c in (0..K).filter(|&c| active[c]) {
+            if pq[c].is_nan() || pq[c] <= 0.0 {
+                return Err(SolveError::Backend(format!(
+                    "conjugate gradients: p·Kp = {:e} ≤ 0 at iteration {} (matrix not positive definite on the search direction)",
+                    pq[c], iters[c]
+                )));
+            }
+            alpha[c] = rz[c] / pq[c];
+        }
+        let (rz_new, rr) = xs
+            .par_iter_mut()
+            .zip(r.par_iter_mut())
+            .zip(z.par_iter_mut())
+            .zip(p.par_iter().zip(q.par_iter()).zip(inv_diag.par_iter()))
+            .with_min_len(MIN_LEN)
+            .with_max_len(MIN_LEN)
+            .map(|(((xi, ri), zi), ((pi, qi), mi))| {
+                let mut out = ([0.0; K], [0.0; K]);
+                for c in 0..K {
+                    xi[c] += alpha[c] * pi[c];
+                    ri[c] -= alpha[c] * qi[c];
+                    zi[c] = ri[c] * mi;
+                    out.0[c] = ri[c] * zi[c];
+                    out.1[c] = ri[c] * ri[c];
+                }
+                out
+            })
+            .reduce(
+                || ([0.0; K], [0.0; K]),
+                |x, y| {
+                    (
+                        std::array::from_fn(|c| x.0[c] + y.0[c]),
+                        std::array::from_fn(|c| x.1[c] + y.1[c]),
+                    )
+                },
+            );
+        let mut beta = [0.0; K];
+        for c in (0..K).filter(|&c| active[c]) {
+            beta[c] = rz_new[c] / rz[c];
+            rz[c] = rz_new[c];
+            rnorm[c] = rr[c].sqrt();
+            iters[c] += 1;
+            if !rnorm[c].is_finite() {
+                return Err(SolveError::Backend(format!(
+                    "conjugate gradients: residual became {} at iteration {}",
+                    rnorm[c], iters[c]
+                )));
+            }
+        }
+        p.par_iter_mut()
+            .zip(z.par_iter())
+            .with_min_len(MIN_LEN)
+            .for_each(|(pi, zi)| {
+                for c in 0..K {
+                    if active[c] {
+                        pi[c] = zi[c] + beta[c] * pi[c];
+                    }
+                }
+            });
+        for c in 0..K {
+            active[c] = active[c] && rnorm[c] > tol[c];
+        }
+    }
+    let true_r = true_residuals(a, &b, &xs);
+    for (c, xc) in x.into_iter().enumerate() {
+        for (xi, v) in xc.iter_mut().zip(&xs) {
+            *xi = v[c];
+        }
+    }
+    Ok(std::array::from_fn(|c| CgInfo {
+        iters: iters[c],
+        abs_residual: true_r[c],
+        rel_residual: if bnorm[c] > 0.0 {
+            true_r[c] / bnorm[c]
+        } else {
+            0.0
+        },
+        initial_residual: r0[c],
+        final_residual: rnorm[c],
+    }))
+}
+
 /// `q = K p`, returning `p·q`, in one pass.
 fn matvec_dot(a: &Assembly, p: &[f64], q: &mut [f64]) -> f64 {
     q.par_iter_mut()

@@ -340,19 +340,55 @@ impl PoissonSolver {
     ) -> Result<(), SolveError> {
         self.ahead = None;
         self.assemble(nl, vol, role, params)?;
-        if self.external.is_none() && self.kind::<D>(params) == SolverKind::Cholesky {
-            let (floating, members) = floating_members(&self.assembly, components);
+        self.factor_ahead::<D>(components, params)
+    }
+
+    /// The part of [`Self::prepare`] after the assembly, for a matrix already assembled by
+    /// [`Self::assemble_ahead`]: the Cholesky factor when that is the solver that will run.
+    pub fn factor_ahead<const D: usize>(
+        &mut self,
+        components: &Components,
+        params: &SolveParams,
+    ) -> Result<(), SolveError> {
+        let a = std::mem::take(&mut self.assembly);
+        let r = self.factor_ahead_of::<D>(&a, components, params);
+        self.assembly = a;
+        r
+    }
+
+    /// [`Self::factor_ahead`] of the matrix `a` taken out of this solver (so that it can be read
+    /// elsewhere meanwhile); the caller puts it back into [`Self::assembly`].
+    pub(crate) fn factor_ahead_of<const D: usize>(
+        &mut self,
+        a: &Assembly,
+        components: &Components,
+        params: &SolveParams,
+    ) -> Result<(), SolveError> {
+        self.ahead = None;
+        if self.external.is_none() && self.kind_for::<D>(a.n(), params) == SolverKind::Cholesky {
+            let (floating, members) = floating_members(a, components);
             let pinned = pinned_unknowns(&members, &floating);
-            let r = self.direct.factor(
-                &self.assembly,
-                &pinned,
-                params.reuse_symbolic,
-                params.reuse_numeric,
-            )?;
+            let r = self
+                .direct
+                .factor(a, &pinned, params.reuse_symbolic, params.reuse_numeric)?;
             count_refactorisation(&mut self.auto_factorisations, params, &r);
             self.ahead = Some(r);
         }
         Ok(())
+    }
+
+    /// The first half of [`Self::prepare`]: the matrix brought up to date with the pair data,
+    /// volumes and roles (so that the implicit viscous matrix can be derived from it, see
+    /// [`Assembly::helmholtz_from`]); [`Self::factor_ahead`] is the second.
+    pub fn assemble_ahead<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        role: &[Role],
+        params: &SolveParams,
+    ) -> Result<(), SolveError> {
+        self.ahead = None;
+        self.assemble(nl, vol, role, params).map(|_| ())
     }
 
     /// The matrix brought up to date with the pair data, volumes and roles; true when the
@@ -387,7 +423,11 @@ impl PoissonSolver {
     /// The solver for the assembled matrix: `params.resolve`, except that `Auto` leaves
     /// Cholesky for AMG once refactorisations show the values change from step to step.
     fn kind<const D: usize>(&self, params: &SolveParams) -> SolverKind {
-        let n = self.assembly.n();
+        self.kind_for::<D>(self.assembly.n(), params)
+    }
+
+    /// [`Self::kind`] for a matrix of `n` unknowns.
+    fn kind_for<const D: usize>(&self, n: usize, params: &SolveParams) -> SolverKind {
         let kind = params.resolve(D, n);
         if params.solver == SolverKind::Auto
             && kind == SolverKind::Cholesky

@@ -541,6 +541,10 @@ pub struct ProjectionStep<const D: usize> {
     viscous_info: SolveInfo,
     diagnostics_cache: Option<(DiagnosticsKey, Components, f64, f64)>,
     gradient: GradientOperator<D>,
+    /// `∇p/ρ` of the current pressure on the current configuration, computed by the driver
+    /// ([`Self::pressure_gradient_into`]) just before [`predict`](Self::predict), which then
+    /// uses it rather than computing it again (valid for that one call: the flag).
+    pressure_gradient_given: (Vec<[f64; D]>, bool),
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -634,6 +638,23 @@ impl<const D: usize> ProjectionStep<D> {
                 *v /= params.rho;
             }
         }
+    }
+
+    /// [`Self::pressure_gradient_into`] into a buffer of this step that the next
+    /// [`predict`](Self::predict) call uses instead of computing the same `∇p/ρ` again: valid
+    /// for that one call, which must see the same particles, configuration and parameters
+    /// (the caller's guarantee). Returns the gradient.
+    pub fn pressure_gradient_for_predictor(
+        &mut self,
+        particles: &mut Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+    ) -> &[[f64; D]] {
+        let mut g = std::mem::take(&mut self.pressure_gradient_given.0);
+        self.pressure_gradient_into(particles, nl, boundary, params, &mut g);
+        self.pressure_gradient_given = (g, true);
+        &self.pressure_gradient_given.0
     }
 
     /// The least-squares coefficients of the wall variant (velocities) for the configuration
@@ -816,10 +837,26 @@ impl<const D: usize> ProjectionStep<D> {
         // empty); a failure there is left to `project`'s own solve, which meets the same
         // inputs and reports it
         let mut solver = std::mem::take(&mut self.solver);
+        // moving particles with an implicit viscous term: the Poisson matrix is assembled
+        // first and the viscous one derived from it (Assembly::helmholtz_from), then the
+        // Poisson factor (if any) and the predictor run side by side, both reading it
+        // (with or without `overlap_solve_setup`, so that both give the same bits)
+        let mut k = None;
+        if plan.viscous_implicit
+            && self.viscous.is_moving()
+            && solver
+                .assemble_ahead(nl, &particles.vol, &particles.role, &params.solve)
+                .is_ok()
+        {
+            k = Some(std::mem::take(&mut solver.assembly));
+        }
         let (_, res) = rayon::join(
             || {
                 if let Some((comps, vol, role)) = &ahead {
-                    let _ = solver.prepare(nl, vol, role, comps, &params.solve);
+                    let _ = match &k {
+                        Some(k) => solver.factor_ahead_of::<D>(k, comps, &params.solve),
+                        None => solver.prepare(nl, vol, role, comps, &params.solve),
+                    };
                 }
             },
             || {
@@ -833,10 +870,16 @@ impl<const D: usize> ProjectionStep<D> {
                     u_star,
                     t,
                     diagnostics_seconds,
+                    k.as_ref(),
                 )
             },
         );
+        if let Some(k) = k {
+            solver.assembly = k;
+        }
         self.solver = solver;
+        // a given pressure gradient serves one call, used or not (an early error)
+        self.pressure_gradient_given.1 = false;
         // the predictor stage lasts until both are done
         res.map(|p| Prediction {
             seconds: t.elapsed().as_secs_f64(),
@@ -857,6 +900,7 @@ impl<const D: usize> ProjectionStep<D> {
         u_star: &mut Vec<[f64; D]>,
         t: Instant,
         diagnostics_seconds: f64,
+        poisson: Option<&crate::poisson::Assembly>,
     ) -> Result<Prediction, Error> {
         let plan = ProjectionPlan::new(params);
         let n = particles.len();
@@ -918,7 +962,15 @@ impl<const D: usize> ProjectionStep<D> {
                 }
             }
         }
-        if plan.pressure_gradient {
+        let (given, valid) = &mut self.pressure_gradient_given;
+        let use_given = std::mem::take(valid) && given.len() == n && plan.pressure_gradient;
+        if use_given {
+            for (a, g) in acc.iter_mut().zip(given.iter()) {
+                for k in 0..D {
+                    a[k] -= g[k];
+                }
+            }
+        } else if plan.pressure_gradient {
             let gp = &mut self.work_vec2;
             gp.resize(n, [0.0; D]);
             self.gradient.kind = params.gradient;
@@ -960,7 +1012,8 @@ impl<const D: usize> ProjectionStep<D> {
                 crate::particles::Role::Ghost { walls, .. } => boundary.velocity_affine(walls),
                 _ => ([1.0; D], [0.0; D]),
             };
-            let info = self.viscous.solve(
+            let info = self.viscous.solve_with_poisson(
+                poisson,
                 nl,
                 &particles.vol,
                 &particles.role,
