@@ -24,6 +24,7 @@
 //! ranks hold the same bits, so the replicated state stays identical across ranks.
 
 pub mod comm;
+pub mod decomposition;
 pub mod diagnostics;
 pub mod driver;
 pub mod halo;
