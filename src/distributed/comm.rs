@@ -30,6 +30,18 @@ pub trait Comm: Send + Sync + std::fmt::Debug {
         out
     }
 
+    /// What each rank receives, from what each sends: `counts[q]` is how many items this rank
+    /// sends to rank `q`; the result's `[q]` is how many it receives from `q` (one all-gather
+    /// of `P` numbers per rank: the lengths that [`Self::exchange`] needs to know).
+    fn transpose_counts(&self, counts: &[usize]) -> Vec<usize> {
+        let me = self.rank();
+        let local: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
+        self.all_gather(&local)
+            .into_iter()
+            .map(|row| row[me] as usize)
+            .collect()
+    }
+
     /// Element-wise maximum over the ranks.
     fn max(&self, local: &[f64]) -> Vec<f64> {
         let all = self.all_gather(local);

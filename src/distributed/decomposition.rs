@@ -204,17 +204,6 @@ pub fn distance_to_box<const D: usize>(
     s.sqrt()
 }
 
-/// How many records this rank sends to each rank (`counts[q]`), exchanged so that each rank
-/// learns what it receives: `result[q]` = records from rank `q`.
-fn receive_counts<C: Comm>(comm: &C, counts: &[usize]) -> Vec<usize> {
-    let me = comm.rank();
-    let local: Vec<f64> = counts.iter().map(|&c| c as f64).collect();
-    comm.all_gather(&local)
-        .into_iter()
-        .map(|row| row[me] as usize)
-        .collect()
-}
-
 /// Sends every particle to the rank whose box holds its position: `x` the positions of this
 /// rank's particles, `records` their data, `width` numbers each (global ids, velocities, …,
 /// whatever the caller packs, as `f64`). Returns the positions and records this rank owns
@@ -243,7 +232,7 @@ pub fn migrate<C: Comm, const D: usize>(
         }
     }
     let counts: Vec<usize> = out.iter().map(|o| o.len() / (D + width)).collect();
-    let incoming = receive_counts(comm, &counts);
+    let incoming = comm.transpose_counts(&counts);
     let sends: Vec<(usize, Vec<f64>)> = out
         .into_iter()
         .enumerate()
@@ -301,7 +290,8 @@ impl ParticleHalo {
         for (q, l) in &sends {
             counts[*q] = l.len();
         }
-        let recvs = receive_counts(comm, &counts)
+        let recvs = comm
+            .transpose_counts(&counts)
             .into_iter()
             .enumerate()
             .filter(|&(q, c)| q != me && c > 0)

@@ -170,6 +170,135 @@ impl LocalRows {
         rows
     }
 
+    /// The rows of this rank from its *local* matrix `a`: the matrix a rank assembles over its
+    /// own particles and the halo of particles it received (the particle decomposition,
+    /// [`super::decomposition`]), whose rows are complete for its own unknowns only. `gid` is
+    /// the global index of each local unknown and `owner` its rank. The rows are those of the
+    /// unknowns owned here, numbered as in [`Self::new`] (own unknowns by global index, then the
+    /// halo by owner and global index); what each neighbour needs from this rank is learnt from
+    /// the neighbour itself — each rank sends every owner the global indices of its halo from
+    /// that owner (one all-gather of counts and one message per neighbour), so no rank reads
+    /// another's rows. [`Self::refill`] then takes the values of `a` (same pattern). The
+    /// overlapping block of the Schwarz preconditioner needs the halo's rows, which a local
+    /// matrix does not have complete: `ext` is left empty. Collective.
+    pub fn from_local<C: super::Comm>(a: CsrRef<'_>, gid: &[u32], owner: &[u32], comm: &C) -> Self {
+        let rank = comm.rank();
+        let n = gid.len();
+        assert_eq!(owner.len(), n, "an owner per local unknown");
+        assert_eq!(a.offsets.len(), n + 1, "a row per local unknown");
+        // own local unknowns in global order
+        let mut own_local: Vec<u32> = (0..n as u32)
+            .filter(|&u| owner[u as usize] as usize == rank)
+            .collect();
+        own_local.sort_unstable_by_key(|&u| gid[u as usize]);
+        let own: Vec<u32> = own_local.iter().map(|&u| gid[u as usize]).collect();
+        assert!(
+            own.windows(2).all(|w| w[0] < w[1]),
+            "global indices of the own unknowns must be distinct"
+        );
+        let mut halo_key: Vec<(u32, u32)> = own_local
+            .iter()
+            .flat_map(|&u| {
+                let u = u as usize;
+                a.cols[a.offsets[u]..a.offsets[u + 1]].iter().copied()
+            })
+            .filter(|&c| owner[c as usize] as usize != rank)
+            .map(|c| (owner[c as usize], gid[c as usize]))
+            .collect();
+        halo_key.sort_unstable();
+        halo_key.dedup();
+        let halo: Vec<u32> = halo_key.iter().map(|k| k.1).collect();
+        let local = |c: u32| -> u32 {
+            let (o, g) = (owner[c as usize], gid[c as usize]);
+            if o as usize == rank {
+                own.binary_search(&g).expect("own unknown") as u32
+            } else {
+                let k = halo_key.binary_search(&(o, g)).expect("halo unknown");
+                (own.len() + k) as u32
+            }
+        };
+        let mut offsets = Vec::with_capacity(own.len() + 1);
+        offsets.push(0);
+        let (mut cols, mut source) = (Vec::new(), Vec::new());
+        let mut block = CsrMatrix {
+            ncols: own.len(),
+            offsets: vec![0],
+            ..Default::default()
+        };
+        let mut block_source = Vec::new();
+        for &u in &own_local {
+            let u = u as usize;
+            let mut row: Vec<(u32, usize)> = (a.offsets[u]..a.offsets[u + 1])
+                .map(|k| (local(a.cols[k]), k))
+                .collect();
+            row.sort_unstable();
+            for (lc, k) in row {
+                cols.push(lc);
+                source.push(k);
+                if (lc as usize) < own.len() {
+                    block.cols.push(lc);
+                    block_source.push(cols.len() - 1);
+                }
+            }
+            offsets.push(cols.len());
+            block.offsets.push(block.cols.len());
+        }
+        let mut recvs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+        for (k, &(q, _)) in halo_key.iter().enumerate() {
+            match recvs.last_mut() {
+                Some((r, range)) if *r == q as usize => range.end = k + 1,
+                _ => recvs.push((q as usize, k..k + 1)),
+            }
+        }
+        // ask each owner for its unknowns in this rank's halo; answer the others' requests
+        let mut counts = vec![0usize; comm.size()];
+        for (q, r) in &recvs {
+            counts[*q] = r.len();
+        }
+        let incoming = comm.transpose_counts(&counts);
+        let requests: Vec<(usize, Vec<f64>)> = recvs
+            .iter()
+            .map(|(q, r)| (*q, halo[r.clone()].iter().map(|&g| g as f64).collect()))
+            .collect();
+        let mut asked: Vec<(usize, Vec<f64>)> = incoming
+            .iter()
+            .enumerate()
+            .filter(|&(q, &c)| q != rank && c > 0)
+            .map(|(q, &c)| (q, vec![0.0; c]))
+            .collect();
+        comm.exchange(&requests, &mut asked);
+        let sends: Vec<(usize, Vec<u32>)> = asked
+            .into_iter()
+            .map(|(q, list)| {
+                let local: Vec<u32> = list
+                    .iter()
+                    .map(|&g| {
+                        own.binary_search(&(g as u32))
+                            .expect("a neighbour asks only for unknowns owned here")
+                            as u32
+                    })
+                    .collect();
+                (q, local)
+            })
+            .collect();
+        let mut rows = LocalRows {
+            ext: CsrMatrix::default(),
+            ext_source: Vec::new(),
+            own,
+            halo,
+            offsets,
+            values: vec![0.0; cols.len()],
+            cols,
+            source,
+            sends,
+            recvs,
+            block,
+            block_source,
+        };
+        rows.refill(a.values);
+        rows
+    }
+
     /// Copies the values of the global matrix (same pattern) into the own rows and the block.
     pub fn refill(&mut self, global_values: &[f64]) {
         for (v, &k) in self.values.iter_mut().zip(&self.source) {
@@ -256,6 +385,129 @@ mod tests {
             }
             // the block holds the own columns only
             assert!(rr.block.cols.iter().all(|&c| (c as usize) < rr.n_own()));
+        }
+    }
+}
+
+#[cfg(test)]
+mod local_tests {
+    use super::*;
+    use crate::distributed::partition::rcb;
+    use crate::distributed::{Comm, ThreadComm};
+
+    /// A 2D grid of `m × m` unknowns with a radius-2 stencil (a particle matrix's pattern in
+    /// miniature), values that differ per entry but keep it symmetric.
+    fn grid(m: usize) -> (Vec<usize>, Vec<u32>, Vec<f64>, Vec<f64>) {
+        let (mut off, mut cols, mut vals) = (vec![0], vec![], vec![]);
+        let mut pos = Vec::new();
+        for i in 0..m * m {
+            let (xi, yi) = ((i % m) as i64, (i / m) as i64);
+            pos.extend([xi as f64, yi as f64]);
+            for j in 0..m * m {
+                let (xj, yj) = ((j % m) as i64, (j / m) as i64);
+                let d2 = (xi - xj).pow(2) + (yi - yj).pow(2);
+                if d2 <= 4 {
+                    cols.push(j as u32);
+                    let s = (i.min(j) * 31 + i.max(j) * 7) as f64;
+                    vals.push(if i == j { 20.0 } else { -1.0 - 0.001 * s });
+                }
+            }
+            off.push(cols.len());
+        }
+        (off, cols, vals, pos)
+    }
+
+    #[test]
+    fn rows_from_local_matrices_equal_the_rows_of_the_global_one() {
+        let m = 12;
+        let (off, cols, vals, pos) = grid(m);
+        let a = CsrRef {
+            offsets: &off,
+            cols: &cols,
+            values: &vals,
+        };
+        let ranks = 4;
+        let owner = rcb(&pos, 2, ranks);
+        let out = ThreadComm::run(ranks, |c| {
+            let r = c.rank();
+            // the local set: own unknowns and everything within two hops, in a scrambled order
+            let mut near = vec![false; m * m];
+            for u in (0..m * m).filter(|&u| owner[u] as usize == r) {
+                near[u] = true;
+                for &v in &cols[off[u]..off[u + 1]] {
+                    near[v as usize] = true;
+                    for &w in &cols[off[v as usize]..off[v as usize + 1]] {
+                        near[w as usize] = true;
+                    }
+                }
+            }
+            let mut set: Vec<u32> = (0..(m * m) as u32).filter(|&u| near[u as usize]).collect();
+            set.sort_unstable_by_key(|&u| (u * 7919) % 1009);
+            let local_of = |g: u32| set.iter().position(|&s| s == g);
+            // local rows: complete for own unknowns; a halo unknown's row cut to the local set
+            // and its values spoiled (they must not be read)
+            let (mut lo, mut lc, mut lv) = (vec![0], vec![], vec![]);
+            for &g in &set {
+                let g = g as usize;
+                let mut row: Vec<(u32, f64)> = (off[g]..off[g + 1])
+                    .filter_map(|k| {
+                        local_of(cols[k]).map(|l| {
+                            let spoil = if owner[g] as usize == r { 1.0 } else { 1e6 };
+                            (l as u32, vals[k] * spoil)
+                        })
+                    })
+                    .collect();
+                row.sort_unstable_by_key(|e| e.0);
+                for (l, v) in row {
+                    lc.push(l);
+                    lv.push(v);
+                }
+                lo.push(lc.len());
+            }
+            let local = CsrRef {
+                offsets: &lo,
+                cols: &lc,
+                values: &lv,
+            };
+            let gid: Vec<u32> = set.clone();
+            let own: Vec<u32> = set.iter().map(|&g| owner[g as usize]).collect();
+            LocalRows::from_local(local, &gid, &own, &c)
+        });
+        let x: Vec<f64> = (0..m * m).map(|i| (i as f64 * 0.37).sin()).collect();
+        let mut y = vec![0.0; m * m];
+        a.spmv(&x, &mut y);
+        for (r, rows) in out.iter().enumerate() {
+            let reference = LocalRows::new(a, &owner, r);
+            assert_eq!(rows.own, reference.own);
+            assert_eq!(rows.halo, reference.halo);
+            assert_eq!(
+                rows.sends, reference.sends,
+                "rank {r}: learnt from the neighbours"
+            );
+            assert_eq!(rows.recvs, reference.recvs);
+            assert_eq!(rows.offsets, reference.offsets);
+            for i in 0..rows.n_own() {
+                let sorted = |rr: &LocalRows| {
+                    let mut e: Vec<(u32, u64)> = (rr.offsets[i]..rr.offsets[i + 1])
+                        .map(|k| (rr.cols[k], rr.values[k].to_bits()))
+                        .collect();
+                    e.sort_unstable();
+                    e
+                };
+                assert_eq!(sorted(rows), sorted(&reference), "rank {r}, row {i}");
+            }
+            assert_eq!(rows.block.offsets, reference.block.offsets);
+            let xl: Vec<f64> = rows
+                .own
+                .iter()
+                .chain(&rows.halo)
+                .map(|&g| x[g as usize])
+                .collect();
+            let mut yl = vec![0.0; rows.n_own()];
+            rows.spmv(&xl, &mut yl);
+            for (k, &g) in rows.own.iter().enumerate() {
+                assert!((yl[k] - y[g as usize]).abs() <= 1e-12 * y[g as usize].abs().max(1.0));
+            }
         }
     }
 }
