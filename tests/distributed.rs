@@ -108,3 +108,131 @@ fn distributed_solves_equal_the_serial_one() {
         eprintln!("vortex {pre:?}: {three} iterations on 3 ranks");
     }
 }
+
+/// The particle decomposition's solve: each rank holds only its own fluid particles and the
+/// halo of particles within `h` of its box (RCB of the particles, `distributed::decomposition`),
+/// makes its own ghosts and neighbour list, assembles its *local* matrix, and the distributed
+/// CG solves from the local systems (`DistributedPoisson::set_local`). The own values equal
+/// the serial solve on all particles.
+fn check_local<B: Boundary<2> + Sync>(build: impl Fn() -> Simulation<2, B> + Sync, ranks: usize) {
+    use gpm::distributed::decomposition::{migrate, ParticleHalo, RcbTree};
+    use gpm::distributed::{Comm, DistributedPoisson};
+    use gpm::neighbors::NeighborList;
+    use gpm::particles::{Particles, Role};
+    let params = SolveParams {
+        solver: SolverKind::Cholesky,
+        rel_tol: 1e-12,
+        ..Default::default()
+    };
+    let sim = build();
+    let (nl, vol, role) = (&sim.nl, &sim.particles.vol, &sim.particles.role);
+    let comps = connectivity(nl, role);
+    let b = rhs(&sim.particles.x);
+    let mut serial = vec![0.0; b.len()];
+    PoissonSolver::new()
+        .solve(nl, vol, role, &comps, &b, &mut serial, &params)
+        .unwrap();
+    let scale = serial.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let fluid: Vec<usize> = (0..role.len())
+        .filter(|&i| role[i] == Role::Fluid)
+        .collect();
+    let config = *nl.config();
+    let per = config.periodic;
+    let out = ThreadComm::run(ranks, |comm| {
+        let me = comm.rank();
+        // a round-robin share of the fluid particles: where they start does not matter
+        let share: Vec<usize> = fluid.iter().copied().filter(|i| i % ranks == me).collect();
+        let x: Vec<[f64; 2]> = share.iter().map(|&i| sim.particles.x[i]).collect();
+        let tree = RcbTree::balance(&comm, &x);
+        let ids: Vec<f64> = share.iter().map(|&i| i as f64).collect();
+        let (own_x, own_ids) = migrate(&comm, &tree, &x, &ids, 1);
+        let halo = ParticleHalo::new(&comm, &tree, &own_x, config.h + config.skin, &per);
+        let halo_ids = halo.exchange(&comm, &own_ids, 1);
+        // the local particles: own, then the halo (its owners in receive order), then ghosts
+        let mut local = Particles::new();
+        let (mut gid, mut owner) = (Vec::new(), Vec::new());
+        let mut halo_owner = Vec::new();
+        for &(q, n) in &halo.recvs {
+            halo_owner.extend(std::iter::repeat_n(q as u32, n));
+        }
+        for (id, o) in own_ids
+            .iter()
+            .map(|&v| (v as usize, me as u32))
+            .chain(halo_ids.iter().map(|&v| v as usize).zip(halo_owner))
+        {
+            local.push(sim.particles.x[id], [0.0; 2], 0.0, vol[id], Role::Fluid);
+            gid.push(id as u32);
+            owner.push(o);
+        }
+        sim.boundary.make_ghosts(&mut local, config.h + config.skin);
+        gid.resize(local.len(), u32::MAX);
+        owner.resize(local.len(), me as u32);
+        let lnl = NeighborList::build(config, &local.x).unwrap();
+        let lcomps = connectivity(&lnl, &local.role);
+        let lb: Vec<f64> = gid
+            .iter()
+            .map(|&g| if g != u32::MAX { b[g as usize] } else { 0.0 })
+            .collect();
+        let mut dp = DistributedPoisson::new(comm.clone());
+        dp.set_local(gid.clone(), owner.clone(), comps.floating().len() == 1);
+        let mut solver = PoissonSolver::new();
+        solver.external = Some(Box::new(dp));
+        let mut phi = vec![0.0; local.len()];
+        solver
+            .solve(
+                &lnl,
+                &local.vol,
+                &local.role,
+                &lcomps,
+                &lb,
+                &mut phi,
+                &params,
+            )
+            .unwrap();
+        // own values, and those of the halo particles that own rows reach (within h of an own
+        // particle: what the correction reads) as their owners computed them
+        let n_own = own_ids.len();
+        let mut read = vec![false; local.len()];
+        for i in 0..n_own {
+            read[i] = true;
+            for k in lnl.row(i) {
+                let j = lnl.indices()[k] as usize;
+                let j = match local.role[j] {
+                    Role::Ghost { source, .. } => source as usize,
+                    _ => j,
+                };
+                read[j] |= lnl.w()[k] > 0.0;
+            }
+        }
+        let mine: Vec<(usize, f64)> = (0..local.len())
+            .filter(|&i| gid[i] != u32::MAX && read[i])
+            .map(|i| (gid[i] as usize, phi[i]))
+            .collect();
+        assert!(
+            ranks == 1 || mine.len() > n_own,
+            "halo values are checked too"
+        );
+        (own_ids.len(), halo.n_halo(), mine)
+    });
+    let total: usize = out.iter().map(|o| o.0).sum();
+    assert_eq!(total, fluid.len(), "every fluid particle owned once");
+    for (rank, (_, n_halo, mine)) in out.iter().enumerate() {
+        assert!(ranks == 1 || *n_halo > 0, "rank {rank} has a halo");
+        for &(id, v) in mine {
+            let diff = (v - serial[id]).abs();
+            assert!(
+                diff <= 1e-9 * scale,
+                "{ranks} ranks, rank {rank}, particle {id}: {v} vs {} ({diff:e})",
+                serial[id]
+            );
+        }
+    }
+}
+
+#[test]
+fn local_systems_of_decomposed_particles_solve_like_the_whole() {
+    for ranks in [1, 3, 4] {
+        check_local(cavity_sim, ranks);
+        check_local(vortex_sim, ranks);
+    }
+}

@@ -49,6 +49,12 @@ impl<C: Comm> ExternalSolve for Shared<C> {
     ) -> Result<crate::poisson::iterative::CgInfo, SolveError> {
         self.0.lock().expect("distributed solver lock").solve(sys)
     }
+    fn handles_null_space(&self) -> bool {
+        self.0
+            .lock()
+            .expect("distributed solver lock")
+            .handles_null_space()
+    }
 }
 
 /// A distributed run's solver and its per-step checks.

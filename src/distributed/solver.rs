@@ -107,6 +107,23 @@ pub struct DistributedPoisson<C: Comm> {
     traffic: Traffic,
     /// Iterations of the last solve.
     pub last_iters: usize,
+    /// Set by [`Self::set_local`]: the systems are local (particle decomposition).
+    local: Option<LocalIds>,
+    /// Local mode: the local unknown of each own row and of each halo entry (`u32::MAX` for a
+    /// halo unknown the local system does not hold: none when the particle halo covers `h`).
+    own_local: Vec<u32>,
+    halo_local: Vec<u32>,
+}
+
+/// What a rank's local system does not say about itself: the global index and owner rank of
+/// each of its particles, and whether the global problem is floating.
+#[derive(Clone, Debug, PartialEq)]
+struct LocalIds {
+    gid: Vec<u32>,
+    owner: Vec<u32>,
+    floating: bool,
+    /// Bumped by every [`DistributedPoisson::set_local`]: the rows are rebuilt.
+    generation: u64,
 }
 
 #[derive(Debug)]
@@ -139,7 +156,33 @@ impl<C: Comm> DistributedPoisson<C> {
             null_key: Vec::new(),
             traffic: Traffic::default(),
             last_iters: 0,
+            local: None,
+            own_local: Vec::new(),
+            halo_local: Vec::new(),
         }
+    }
+
+    /// Switches to local systems (the particle decomposition, [`super::decomposition`]): each
+    /// rank's system is the one it assembled over its own particles and the halo of particles
+    /// it received, complete in the rows of its own fluid particles only. `gid[i]` is the global
+    /// index of local particle `i` and `owner[i]` its rank (for the unknowns; ghosts and
+    /// Dirichlet particles are not read); `floating` says whether the *global* problem has
+    /// the constants as null space (no Dirichlet particle anywhere: the closed cavity, the
+    /// periodic box) — a local system cannot tell. Call it again whenever the local particles
+    /// change. The rows are then built from the local matrix ([`LocalRows::from_local`]), the
+    /// coarse aggregates per rank, and the solution written back to the own and halo unknowns
+    /// of the local system (others keep their value). Not with [`DdPreconditioner::Schwarz`]
+    /// (it needs the halo's rows).
+    pub fn set_local(&mut self, gid: Vec<u32>, owner: Vec<u32>, floating: bool) {
+        assert_eq!(gid.len(), owner.len(), "an owner per particle");
+        let generation = self.local.as_ref().map_or(0, |l| l.generation + 1);
+        self.local = Some(LocalIds {
+            gid,
+            owner,
+            floating,
+            generation,
+        });
+        self.pattern = None;
     }
 
     /// The communicator.
@@ -227,8 +270,42 @@ impl<C: Comm> DistributedPoisson<C> {
         let a = CsrRef::from(sys.a);
         let pattern = sys.a.pattern_id();
         if self.pattern != Some(pattern) || self.owner.len() != sys.a.n() {
-            self.owner = rcb(sys.positions, sys.dim, self.comm.size());
-            self.rows = LocalRows::new(a, &self.owner, self.comm.rank());
+            match &self.local {
+                Some(l) => {
+                    let n = sys.a.n();
+                    let gid: Vec<u32> = (0..n).map(|u| l.gid[sys.a.particle[u] as usize]).collect();
+                    self.owner = (0..n)
+                        .map(|u| l.owner[sys.a.particle[u] as usize])
+                        .collect();
+                    self.rows = LocalRows::from_local(a, &gid, &self.owner, &self.comm);
+                    let me = self.comm.rank() as u32;
+                    let mut own_local: Vec<u32> = (0..n as u32)
+                        .filter(|&u| self.owner[u as usize] == me)
+                        .collect();
+                    own_local.sort_unstable_by_key(|&u| gid[u as usize]);
+                    let mut at = std::collections::HashMap::new();
+                    for u in (0..n as u32).filter(|&u| self.owner[u as usize] != me) {
+                        at.insert((self.owner[u as usize], gid[u as usize]), u);
+                    }
+                    // the halo's owners, in the order of `rows.halo` (by owner, then index)
+                    let mut halo_owner = Vec::with_capacity(self.rows.halo.len());
+                    for (q, range) in &self.rows.recvs {
+                        halo_owner.extend(std::iter::repeat_n(*q as u32, range.len()));
+                    }
+                    self.halo_local = self
+                        .rows
+                        .halo
+                        .iter()
+                        .zip(&halo_owner)
+                        .map(|(&g, &q)| at.get(&(q, g)).copied().unwrap_or(u32::MAX))
+                        .collect();
+                    self.own_local = own_local;
+                }
+                None => {
+                    self.owner = rcb(sys.positions, sys.dim, self.comm.size());
+                    self.rows = LocalRows::new(a, &self.owner, self.comm.rank());
+                }
+            }
             self.pattern = Some(pattern);
             self.built_for = None;
         } else {
@@ -289,6 +366,9 @@ impl<C: Comm> DistributedPoisson<C> {
     /// `A_c = Zᵀ K Z` summed over the ranks' rows, plus `σ 1 1ᵀ` on each floating component's
     /// aggregates (its constants are the null space), factorised by dense Cholesky.
     fn coarse_space(&mut self, sys: &ExternalSystem<'_>, null: &[Vec<u32>]) -> Coarse {
+        if let Some(floating) = self.local.as_ref().map(|l| l.floating) {
+            return self.coarse_space_local(sys, floating);
+        }
         let p = self.comm.size();
         let d = sys.dim;
         let mut global_agg = vec![0u32; self.owner.len()];
@@ -321,6 +401,57 @@ impl<C: Comm> DistributedPoisson<C> {
             .chain(&self.rows.halo)
             .map(|&g| global_agg[g as usize])
             .collect();
+        let comp_counts: Vec<Vec<f64>> = null
+            .iter()
+            .map(|comp| {
+                let mut count = vec![0.0; nc];
+                for &u in comp {
+                    count[global_agg[u as usize] as usize] += 1.0;
+                }
+                count
+            })
+            .collect();
+        self.coarse_factor(agg, nc, comp_counts)
+    }
+
+    /// The coarse space of local systems: each rank cuts its own unknowns into aggregates of
+    /// about `aggregate_size` (numbered after those of the ranks before it), the halo learns
+    /// its aggregates from the owners; the floating component, when the global problem has
+    /// one, is every unknown.
+    fn coarse_space_local(&mut self, sys: &ExternalSystem<'_>, floating: bool) -> Coarse {
+        let d = sys.dim;
+        let m = self.rows.n_own();
+        let parts = m.div_ceil(self.aggregate_size.max(1)).max(1);
+        let all = self.comm.all_gather(&[parts as f64]);
+        let first: usize = all[..self.comm.rank()].iter().map(|v| v[0] as usize).sum();
+        let nc: usize = all.iter().map(|v| v[0] as usize).sum();
+        let pts: Vec<f64> = self
+            .own_local
+            .iter()
+            .flat_map(|&u| sys.positions[u as usize * d..(u as usize + 1) * d].to_vec())
+            .collect();
+        let mut aggf = vec![0.0; m + self.rows.halo.len()];
+        if m > 0 {
+            for (k, part) in rcb(&pts, d, parts).into_iter().enumerate() {
+                aggf[k] = (first + part as usize) as f64;
+            }
+        }
+        self.exchange_values(&mut aggf);
+        let agg: Vec<u32> = aggf.iter().map(|&a| a as u32).collect();
+        let mut comp_counts = Vec::new();
+        if floating {
+            let mut count = vec![0.0; nc];
+            for &a in &agg[..m] {
+                count[a as usize] += 1.0;
+            }
+            comp_counts.push(self.reduce(&count));
+        }
+        self.coarse_factor(agg, nc, comp_counts)
+    }
+
+    /// `A_c = Zᵀ K Z` summed over the ranks' rows, plus `σ 1 1ᵀ` on the aggregates of each
+    /// floating component (`comp_counts[k][a]`: its members in aggregate `a`), factorised.
+    fn coarse_factor(&mut self, agg: Vec<u32>, nc: usize, comp_counts: Vec<Vec<f64>>) -> Coarse {
         let mut ac = vec![0.0; nc * nc];
         for i in 0..self.rows.n_own() {
             let ai = agg[i] as usize;
@@ -330,17 +461,10 @@ impl<C: Comm> DistributedPoisson<C> {
         }
         let mut ac = self.reduce(&ac);
         let sigma = (0..nc).map(|a| ac[a * nc + a]).sum::<f64>() / nc as f64;
-        let mut comp_counts = Vec::new();
-        for comp in null {
-            let mut on = vec![false; nc];
-            let mut count = vec![0.0; nc];
-            for &u in comp {
-                on[global_agg[u as usize] as usize] = true;
-                count[global_agg[u as usize] as usize] += 1.0;
-            }
-            comp_counts.push(count);
-            for a in (0..nc).filter(|&a| on[a]) {
-                for b in (0..nc).filter(|&b| on[b]) {
+        for count in &comp_counts {
+            let on: Vec<usize> = (0..nc).filter(|&a| count[a] > 0.0).collect();
+            for &a in &on {
+                for &b in &on {
                     ac[a * nc + b] += sigma;
                 }
             }
@@ -516,15 +640,50 @@ fn local_null(rows: &LocalRows, null: &[&[u32]]) -> Vec<(Vec<usize>, f64)> {
 }
 
 impl<C: Comm> ExternalSolve for DistributedPoisson<C> {
+    fn handles_null_space(&self) -> bool {
+        self.local.is_some()
+    }
+
     fn solve(&mut self, sys: ExternalSystem<'_>) -> Result<CgInfo, SolveError> {
-        let null_owned: Vec<Vec<u32>> = sys.null.iter().map(|c| c.to_vec()).collect();
+        // local systems: the floating component is the global problem's (set_local)
+        let null_owned: Vec<Vec<u32>> = match self.local {
+            Some(_) => Vec::new(),
+            None => sys.null.iter().map(|c| c.to_vec()).collect(),
+        };
         self.setup(&sys, &null_owned);
         let params = sys.params;
         let m = self.rows.n_own();
         let nh = self.rows.halo.len();
-        let comps = local_null(&self.rows, sys.null);
-        let b: Vec<f64> = self.rows.own.iter().map(|&g| sys.b[g as usize]).collect();
-        let mut x: Vec<f64> = self.rows.own.iter().map(|&g| sys.x[g as usize]).collect();
+        let (comps, b, mut x) = match self.local.as_ref().map(|l| l.floating) {
+            Some(floating) => {
+                let count = self.reduce(&[m as f64])[0];
+                let comps = if floating {
+                    vec![((0..m).collect::<Vec<usize>>(), count)]
+                } else {
+                    Vec::new()
+                };
+                let own_local = std::mem::take(&mut self.own_local);
+                let pick =
+                    |v: &[f64]| -> Vec<f64> { own_local.iter().map(|&u| v[u as usize]).collect() };
+                let mut b = pick(sys.b);
+                let (w, x0) = (pick(sys.weights), pick(sys.x));
+                self.own_local = own_local;
+                if floating {
+                    // the right side made compatible: zero sum, ω-weighted over all ranks
+                    let s = self.reduce(&[b.iter().sum::<f64>(), w.iter().sum::<f64>()]);
+                    let mean = s[0] / s[1];
+                    for (bi, wi) in b.iter_mut().zip(&w) {
+                        *bi -= wi * mean;
+                    }
+                }
+                (comps, b, x0)
+            }
+            None => (
+                local_null(&self.rows, sys.null),
+                self.rows.own.iter().map(|&g| sys.b[g as usize]).collect(),
+                self.rows.own.iter().map(|&g| sys.x[g as usize]).collect(),
+            ),
+        };
         x.resize(m + nh, 0.0);
         self.traffic.solves += 1;
 
@@ -599,6 +758,22 @@ impl<C: Comm> ExternalSolve for DistributedPoisson<C> {
         self.rows.spmv(&x, &mut q);
         let tr: f64 = (0..m).map(|i| (b[i] - q[i]).powi(2)).sum();
         let true_r = self.reduce(&[tr])[0].sqrt();
+        if self.local.as_ref().is_some_and(|l| l.floating) {
+            // the constant fixed: zero ω-weighted mean over all ranks
+            let w: Vec<f64> = self
+                .own_local
+                .iter()
+                .map(|&u| sys.weights[u as usize])
+                .collect();
+            let s = self.reduce(&[
+                w.iter().zip(&x).map(|(w, x)| w * x).sum::<f64>(),
+                w.iter().sum::<f64>(),
+            ]);
+            let mean = s[0] / s[1];
+            for xi in x[..m].iter_mut() {
+                *xi -= mean;
+            }
+        }
         self.gather(&x[..m], sys.x);
         Ok(CgInfo {
             iters,
@@ -647,8 +822,24 @@ impl<C: Comm> DistributedPoisson<C> {
         (if e > 0 { s[0] } else { 0.0 }, rr.max(0.0))
     }
 
-    /// Every rank's own values into the global vector `x` (allgather).
+    /// Every rank's own values into the global vector `x` (allgather); local systems: the own
+    /// values and the halo's (one exchange) into the local unknowns.
     fn gather(&mut self, own: &[f64], x: &mut [f64]) {
+        if self.local.is_some() {
+            let m = own.len();
+            let mut full = own.to_vec();
+            full.resize(m + self.rows.halo.len(), 0.0);
+            self.exchange_values(&mut full);
+            for (&u, &v) in self.own_local.iter().zip(&full[..m]) {
+                x[u as usize] = v;
+            }
+            for (&u, &v) in self.halo_local.iter().zip(&full[m..]) {
+                if u != u32::MAX {
+                    x[u as usize] = v;
+                }
+            }
+            return;
+        }
         self.traffic.gathered_bytes += 8 * own.len() as u64;
         let all = self.comm.all_gather(own);
         let mut next = vec![0usize; all.len()];

@@ -278,6 +278,8 @@ pub struct ExternalSystem<'a> {
     pub dim: usize,
     /// Tolerances and iteration limit.
     pub params: &'a SolveParams,
+    /// Volume `ω` of each unknown's particle (the weights of the floating components' means).
+    pub weights: &'a [f64],
 }
 
 /// A solver that replaces the built-in ones for the Poisson system (the domain-decomposed CG
@@ -285,6 +287,14 @@ pub struct ExternalSystem<'a> {
 pub trait ExternalSolve: Send + Sync + std::fmt::Debug {
     /// Solves the system in place.
     fn solve(&mut self, sys: ExternalSystem<'_>) -> Result<iterative::CgInfo, SolveError>;
+
+    /// True when the solver itself makes the right side compatible and fixes the constant
+    /// (zero `ω`-weighted mean) of the floating components, globally: a rank's local system
+    /// cannot (its component is a piece of the global one). Then [`PoissonSolver::solve`]
+    /// leaves `b` and the solution as they are. Default false.
+    fn handles_null_space(&self) -> bool {
+        false
+    }
 }
 
 /// Reusable solver state: matrix pattern and values, Cholesky caches, AMG hierarchy, scratch.
@@ -523,7 +533,11 @@ impl PoissonSolver {
         // floating components: members (as unknowns), right side projected to zero sum
         let (floating, members) = floating_members(a, components);
         info.floating = floating.len();
-        if !floating.is_empty() {
+        let global_null = self
+            .external
+            .as_ref()
+            .is_some_and(|e| e.handles_null_space());
+        if !floating.is_empty() && !global_null {
             for &c in &floating {
                 let m = &members[c];
                 let sum_b: f64 = m.iter().map(|&u| self.b[u as usize]).sum();
@@ -561,6 +575,7 @@ impl PoissonSolver {
             let xs = nl.search_positions();
             let positions: Vec<f64> = a.particle.iter().flat_map(|&p| xs[p as usize]).collect();
             let null: Vec<&[u32]> = floating.iter().map(|&c| members[c].as_slice()).collect();
+            let weights: Vec<f64> = a.particle.iter().map(|&p| vol[p as usize]).collect();
             let t = Instant::now();
             let r = ext.solve(ExternalSystem {
                 a,
@@ -570,6 +585,7 @@ impl PoissonSolver {
                 positions: &positions,
                 dim: D,
                 params,
+                weights: &weights,
             })?;
             info.solve_seconds = t.elapsed().as_secs_f64();
             info.iters = r.iters;
@@ -659,7 +675,7 @@ impl PoissonSolver {
             }
         }
         // fix the constant of each floating component: zero ω-weighted mean
-        for &c in &floating {
+        for &c in floating.iter().filter(|_| !global_null) {
             let m = &members[c];
             let sw: f64 = m
                 .iter()
