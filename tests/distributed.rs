@@ -16,13 +16,17 @@ fn rhs(x: &[[f64; 2]]) -> Vec<f64> {
         .collect()
 }
 
-/// Solves on `ranks` thread ranks and compares with the serial Cholesky solve; returns the
-/// iterations.
-fn check<B: Boundary<2>>(
-    build: impl Fn() -> Simulation<2, B> + Sync,
-    ranks: usize,
-    pre: DdPreconditioner,
-) -> usize {
+/// The scene of `build`, the solver settings of these tests (CG to 1e-12 for the distributed
+/// runs), its connectivity, the right side [`rhs`] and the serial Cholesky solution.
+fn serial_solve<B: Boundary<2>>(
+    build: &impl Fn() -> Simulation<2, B>,
+) -> (
+    Simulation<2, B>,
+    SolveParams,
+    gpm::diagnostics::Components,
+    Vec<f64>,
+    Vec<f64>,
+) {
     let params = SolveParams {
         solver: SolverKind::Cholesky,
         rel_tol: 1e-12,
@@ -36,6 +40,18 @@ fn check<B: Boundary<2>>(
     PoissonSolver::new()
         .solve(nl, vol, role, &comps, &b, &mut serial, &params)
         .unwrap();
+    (sim, params, comps, b, serial)
+}
+
+/// Solves on `ranks` thread ranks and compares with the serial Cholesky solve; returns the
+/// iterations.
+fn check<B: Boundary<2>>(
+    build: impl Fn() -> Simulation<2, B> + Sync,
+    ranks: usize,
+    pre: DdPreconditioner,
+) -> usize {
+    let (sim, params, comps, b, serial) = serial_solve(&build);
+    let (nl, vol, role) = (&sim.nl, &sim.particles.vol, &sim.particles.role);
     let c0 = semi_regularity(nl, vol, role, Region::Omega);
     let summary = comps.summary();
     let scale = serial.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -119,19 +135,8 @@ fn check_local<B: Boundary<2> + Sync>(build: impl Fn() -> Simulation<2, B> + Syn
     use gpm::distributed::{Comm, DistributedPoisson};
     use gpm::neighbors::NeighborList;
     use gpm::particles::{Particles, Role};
-    let params = SolveParams {
-        solver: SolverKind::Cholesky,
-        rel_tol: 1e-12,
-        ..Default::default()
-    };
-    let sim = build();
+    let (sim, params, comps, b, serial) = serial_solve(&build);
     let (nl, vol, role) = (&sim.nl, &sim.particles.vol, &sim.particles.role);
-    let comps = connectivity(nl, role);
-    let b = rhs(&sim.particles.x);
-    let mut serial = vec![0.0; b.len()];
-    PoissonSolver::new()
-        .solve(nl, vol, role, &comps, &b, &mut serial, &params)
-        .unwrap();
     let scale = serial.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let fluid: Vec<usize> = (0..role.len())
         .filter(|&i| role[i] == Role::Fluid)

@@ -42,6 +42,64 @@ pub struct LocalRows {
     ext_source: Vec<usize>,
 }
 
+/// The own rows' CSR: row starts, local columns, the entry of `a` each came from, the
+/// own–own block and the position of each block entry.
+type OwnRows = (Vec<usize>, Vec<u32>, Vec<usize>, CsrMatrix, Vec<usize>);
+
+/// The rows `rows` of `a` (in this order) with their columns renumbered by `local` (own
+/// unknowns below `n_own`, then the halo), sorted by local column when `sorted` (else in `a`'s
+/// order), and their own–own block.
+fn own_rows(
+    a: CsrRef<'_>,
+    rows: &[u32],
+    n_own: usize,
+    local: impl Fn(u32) -> u32,
+    sorted: bool,
+) -> OwnRows {
+    let mut offsets = Vec::with_capacity(rows.len() + 1);
+    offsets.push(0);
+    let (mut cols, mut source) = (Vec::new(), Vec::new());
+    let mut block = CsrMatrix {
+        ncols: n_own,
+        offsets: vec![0],
+        ..Default::default()
+    };
+    let mut block_source = Vec::new();
+    let mut row: Vec<(u32, usize)> = Vec::new();
+    for &u in rows {
+        let u = u as usize;
+        row.clear();
+        row.extend((a.offsets[u]..a.offsets[u + 1]).map(|k| (local(a.cols[k]), k)));
+        if sorted {
+            row.sort_unstable();
+        }
+        for &(lc, k) in &row {
+            cols.push(lc);
+            source.push(k);
+            if (lc as usize) < n_own {
+                block.cols.push(lc);
+                block_source.push(cols.len() - 1);
+            }
+        }
+        offsets.push(cols.len());
+        block.offsets.push(block.cols.len());
+    }
+    (offsets, cols, source, block, block_source)
+}
+
+/// The range of each owner's run in a halo listed by owner: `(owner, range)` in order.
+fn ranges_by_owner(owners: impl Iterator<Item = u32>) -> Vec<(usize, std::ops::Range<usize>)> {
+    let mut recvs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+    for (k, q) in owners.enumerate() {
+        let q = q as usize;
+        match recvs.last_mut() {
+            Some((r, range)) if *r == q => range.end = k + 1,
+            _ => recvs.push((q, k..k + 1)),
+        }
+    }
+    recvs
+}
+
 impl LocalRows {
     /// The rows of `rank` from a global matrix `a` and the owner of every unknown.
     pub fn new(a: CsrRef<'_>, owner: &[u32], rank: usize) -> Self {
@@ -70,30 +128,8 @@ impl LocalRows {
                 (own.len() + k) as u32
             }
         };
-        let mut offsets = Vec::with_capacity(own.len() + 1);
-        offsets.push(0);
-        let (mut cols, mut source) = (Vec::new(), Vec::new());
-        let mut block = CsrMatrix {
-            ncols: own.len(),
-            offsets: vec![0],
-            ..Default::default()
-        };
-        let mut block_source = Vec::new();
-        for &u in &own {
-            let u = u as usize;
-            for k in a.offsets[u]..a.offsets[u + 1] {
-                let c = a.cols[k];
-                let lc = local(c);
-                cols.push(lc);
-                source.push(k);
-                if (lc as usize) < own.len() {
-                    block.cols.push(lc);
-                    block_source.push(cols.len() - 1);
-                }
-            }
-            offsets.push(cols.len());
-            block.offsets.push(block.cols.len());
-        }
+        let (offsets, cols, source, block, block_source) =
+            own_rows(a, &own, own.len(), local, false);
         // what each other rank needs from this one: the columns of its rows owned here, read
         // from its rows (not from the transpose: a pair at `r = h` within rounding can be in
         // one row and not in the other, so the pattern need not be exactly symmetric)
@@ -116,14 +152,7 @@ impl LocalRows {
                 _ => sends.push((q as usize, vec![li])),
             }
         }
-        let mut recvs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
-        for (k, &c) in halo.iter().enumerate() {
-            let q = owner[c as usize] as usize;
-            match recvs.last_mut() {
-                Some((r, range)) if *r == q => range.end = k + 1,
-                _ => recvs.push((q, k..k + 1)),
-            }
-        }
+        let recvs = ranges_by_owner(halo.iter().map(|&c| owner[c as usize]));
         // the overlapping block: own rows, then the halo's rows cut to own ∪ halo
         let mut ext = CsrMatrix {
             ncols: own.len() + halo.len(),
@@ -217,39 +246,9 @@ impl LocalRows {
                 (own.len() + k) as u32
             }
         };
-        let mut offsets = Vec::with_capacity(own.len() + 1);
-        offsets.push(0);
-        let (mut cols, mut source) = (Vec::new(), Vec::new());
-        let mut block = CsrMatrix {
-            ncols: own.len(),
-            offsets: vec![0],
-            ..Default::default()
-        };
-        let mut block_source = Vec::new();
-        for &u in &own_local {
-            let u = u as usize;
-            let mut row: Vec<(u32, usize)> = (a.offsets[u]..a.offsets[u + 1])
-                .map(|k| (local(a.cols[k]), k))
-                .collect();
-            row.sort_unstable();
-            for (lc, k) in row {
-                cols.push(lc);
-                source.push(k);
-                if (lc as usize) < own.len() {
-                    block.cols.push(lc);
-                    block_source.push(cols.len() - 1);
-                }
-            }
-            offsets.push(cols.len());
-            block.offsets.push(block.cols.len());
-        }
-        let mut recvs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
-        for (k, &(q, _)) in halo_key.iter().enumerate() {
-            match recvs.last_mut() {
-                Some((r, range)) if *r == q as usize => range.end = k + 1,
-                _ => recvs.push((q as usize, k..k + 1)),
-            }
-        }
+        let (offsets, cols, source, block, block_source) =
+            own_rows(a, &own_local, own.len(), local, true);
+        let recvs = ranges_by_owner(halo_key.iter().map(|k| k.0));
         // ask each owner for its unknowns in this rank's halo; answer the others' requests
         let mut counts = vec![0usize; comm.size()];
         for (q, r) in &recvs {

@@ -62,6 +62,21 @@ struct ValuesKey {
     sigma: Vec<f64>,
 }
 
+/// Rows per parallel chunk of the value fills.
+const ROW_CHUNK: usize = 256;
+
+/// `values` (one per entry of the rows `offsets`) split at every `ROW_CHUNK`-th row: chunk
+/// `c` holds the entries of rows `c·ROW_CHUNK ..`, for a parallel fill by rows.
+fn row_chunks<'a>(offsets: &[usize], values: &'a mut [f64]) -> Vec<&'a mut [f64]> {
+    let Some(n) = offsets.len().checked_sub(1) else {
+        return Vec::new();
+    };
+    let bounds: Vec<usize> = (0..=n.div_ceil(ROW_CHUNK))
+        .map(|c| offsets[(c * ROW_CHUNK).min(n)])
+        .collect();
+    split_by(values, &bounds)
+}
+
 fn role_hash(role: &[Role]) -> u64 {
     // FNV-1a over the role tags and ghost sources
     let mut h: u64 = 0xcbf29ce484222325;
@@ -267,11 +282,8 @@ impl Assembly {
         let two_d = 2.0 * D as f64;
         let corrected = sigma.iter().any(|&s| s != 1.0);
         let n = self.n();
-        const CHUNK: usize = 256;
-        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
-            .map(|ch| self.offsets[(ch * CHUNK).min(n)])
-            .collect();
-        let parts = split_by(&mut self.values, &bounds);
+        const CHUNK: usize = ROW_CHUNK;
+        let parts = row_chunks(&self.offsets, &mut self.values);
         let (offsets, cols, diag, particle, unknown) = (
             &self.offsets,
             &self.cols,
@@ -477,11 +489,8 @@ impl Assembly {
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
-        const CHUNK: usize = 256;
-        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
-            .map(|c| self.offsets[(c * CHUNK).min(n)])
-            .collect();
-        let parts = split_by(&mut self.values, &bounds);
+        const CHUNK: usize = ROW_CHUNK;
+        let parts = row_chunks(&self.offsets, &mut self.values);
         let (offsets, cols, diag, particle, unknown) = (
             &self.offsets,
             &self.cols,
