@@ -241,3 +241,85 @@ fn local_systems_of_decomposed_particles_solve_like_the_whole() {
         check_local(vortex_sim, ranks);
     }
 }
+
+/// `steps` steps of the scene of `build`, serial and decomposed over `ranks` thread ranks
+/// (each rank holding its own particles and their halo, `distributed::decomposed`): the own
+/// particles' velocities and pressures equal the serial run's.
+fn check_steps<B: Boundary<2> + Clone + Sync>(
+    build: impl Fn() -> Simulation<2, B> + Sync,
+    ranks: usize,
+    steps: usize,
+) {
+    use gpm::distributed::decomposed::DecomposedRun;
+    let tight = || {
+        let mut s = build();
+        s.params.projection.solve.rel_tol = 1e-12;
+        s
+    };
+    let mut serial = tight();
+    let reports: Vec<_> = (0..steps).map(|_| serial.advance().unwrap()).collect();
+    let out = ThreadComm::run(ranks, |comm| {
+        let global = tight();
+        let mut run = DecomposedRun::new(comm, &global).unwrap();
+        let mut t = 0.0;
+        for (k, serial_rep) in reports.iter().enumerate() {
+            let rep = match run.advance() {
+                Ok(r) => r,
+                Err(e) => panic!("rank {}: step {k}: {e}", run.n_own()),
+            };
+            // the global diagnostics of the step equal the serial run's
+            let g = run.global_diagnostics(rep.time - t);
+            t = rep.time;
+            let sp = &serial_rep.projection;
+            assert_eq!(g.connectivity, sp.connectivity, "step {k}");
+            assert!(
+                (g.c0 - sp.c0).abs() <= 1e-12 * sp.c0,
+                "step {k}: c0 {} vs {}",
+                g.c0,
+                sp.c0
+            );
+            let ratio = (g.stability_ratio - sp.stability_ratio).abs();
+            assert!(
+                ratio <= 1e-6 * sp.stability_ratio,
+                "step {k}: ratio {} vs {}",
+                g.stability_ratio,
+                sp.stability_ratio
+            );
+        }
+        let p = &run.sim.particles;
+        run.own_ids()
+            .iter()
+            .enumerate()
+            .map(|(i, &g)| (g as usize, p.u[i], p.p[i]))
+            .collect::<Vec<_>>()
+    });
+    let fluid = serial
+        .particles
+        .role
+        .iter()
+        .filter(|r| r.is_fluid())
+        .count();
+    assert_eq!(out.iter().map(|o| o.len()).sum::<usize>(), fluid);
+    let pscale = serial
+        .particles
+        .p
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()));
+    let (mut du, mut dp) = (0.0f64, 0.0f64);
+    for (g, u, p) in out.into_iter().flatten() {
+        let s = &serial.particles;
+        du = du.max((u[0] - s.u[g][0]).abs().max((u[1] - s.u[g][1]).abs()));
+        dp = dp.max((p - s.p[g]).abs());
+    }
+    eprintln!("{ranks} ranks, {steps} steps: largest velocity difference {du:e}, pressure {dp:e} (scale {pscale:e})");
+    assert!(du <= 1e-9, "velocity difference {du:e}");
+    assert!(dp <= 1e-9 * pscale.max(1.0), "pressure difference {dp:e}");
+}
+
+#[test]
+fn decomposed_particles_step_like_the_whole() {
+    for ranks in [1, 4] {
+        check_steps(cavity_sim, ranks, 20);
+        check_steps(vortex_sim, ranks, 20);
+    }
+}

@@ -94,6 +94,10 @@ pub struct ThreadComm {
 
 impl ThreadComm {
     /// Runs `f` on `size` threads, one rank each, and returns their results in rank order.
+    /// Each rank runs inside its own one-thread rayon pool, as an MPI rank runs in its own
+    /// process: ranks that block in a collective must not hold the threads of a shared pool
+    /// that the other ranks' work is queued on (a flow step runs inside the pool,
+    /// [`crate::math::in_pool`]).
     pub fn run<R: Send>(size: usize, f: impl Fn(ThreadComm) -> R + Sync) -> Vec<R> {
         let shared = Arc::new((Mutex::new(Mailboxes::default()), Condvar::new()));
         std::thread::scope(|s| {
@@ -105,7 +109,12 @@ impl ThreadComm {
                         shared: shared.clone(),
                     };
                     let f = &f;
-                    s.spawn(move || f(comm))
+                    s.spawn(
+                        move || match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+                            Ok(pool) => pool.install(|| f(comm)),
+                            Err(_) => f(comm),
+                        },
+                    )
                 })
                 .collect();
             handles

@@ -94,6 +94,7 @@ fn components<C: Comm, const D: usize>(
     role: &[Role],
 ) -> (ConnectivitySummary, usize) {
     let rows = dd.rows().clone();
+    let own_unknowns = dd.own_unknowns().to_vec();
     let m = rows.n_own();
     let nh = rows.halo.len();
     // local union-find along own–own entries
@@ -113,8 +114,8 @@ fn components<C: Comm, const D: usize>(
     // touches the band / has a neighbour at all (the serial rule of diagnostics::connectivity)
     let mut touches = vec![false; m];
     let mut isolated = 0.0;
-    for (li, &g) in rows.own.iter().enumerate() {
-        let i = a.particle[g as usize] as usize;
+    for (li, &u) in own_unknowns.iter().enumerate() {
+        let i = a.particle[u as usize] as usize;
         let mut has_nb = false;
         for k in nl.row(i) {
             match alias(role, nl.indices()[k] as usize) {

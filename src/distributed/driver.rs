@@ -40,7 +40,7 @@ pub enum DistributedError {
 /// The solver shared between the Poisson solver (which calls it) and the driver (which reads
 /// its partition and traffic).
 #[derive(Debug)]
-struct Shared<C: Comm>(Arc<Mutex<DistributedPoisson<C>>>);
+pub(crate) struct Shared<C: Comm>(pub(crate) Arc<Mutex<DistributedPoisson<C>>>);
 
 impl<C: Comm> ExternalSolve for Shared<C> {
     fn solve(

@@ -18,15 +18,17 @@
 //! solve. So memory does not shrink with the ranks and only the solve's work is divided; the
 //! message counts of a fully distributed step (particle halo within `h` + skin) are modelled
 //! in `docs/mpi.md`. Recording: rank 0 writes the one MCAP file; it holds every particle, so
-//! the snapshots need no gather. The pieces of the full decomposition exist and are tested
-//! but no run uses them yet: the particles cut, migrated and given a halo
-//! ([`decomposition`]), a rank's rows taken from its local matrix ([`halo::LocalRows::from_local`])
-//! and the solve on local systems ([`DistributedPoisson::set_local`]).
+//! the snapshots need no gather. The full decomposition exists for fixed particles
+//! ([`decomposed::DecomposedRun`], tested on thread ranks, not yet behind `gpm run`): the
+//! particles cut, migrated and given a halo ([`decomposition`]), a rank's rows taken from its
+//! local matrix ([`halo::LocalRows::from_local`]) and both global solves of the step on the
+//! local systems ([`DistributedPoisson::set_local`]).
 //!
 //! Every reduction adds the ranks' partial sums in rank order ([`comm::Comm::sum`]): all
 //! ranks hold the same bits, so the replicated state stays identical across ranks.
 
 pub mod comm;
+pub mod decomposed;
 pub mod decomposition;
 pub mod diagnostics;
 pub mod driver;

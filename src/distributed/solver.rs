@@ -205,6 +205,16 @@ impl<C: Comm> DistributedPoisson<C> {
         &self.rows
     }
 
+    /// The unknown (of the system the last solve saw) of each own row: the global index for
+    /// the whole system, the local unknown for a rank's local system ([`Self::set_local`]).
+    pub fn own_unknowns(&self) -> &[u32] {
+        if self.local.is_some() {
+            &self.own_local
+        } else {
+            &self.rows.own
+        }
+    }
+
     fn reduce(&mut self, v: &[f64]) -> Vec<f64> {
         self.traffic.reductions += 1;
         self.traffic.reduced_values += v.len() as u64;

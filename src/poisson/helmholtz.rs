@@ -35,6 +35,9 @@ pub struct HelmholtzSolver {
     auto_factorisations: u32,
     /// Set by [`Self::assume_moving`].
     moving: bool,
+    /// When set, every component's solve goes to this solver (the distributed CG on a rank's
+    /// local system); the matrix is assembled here as always.
+    pub external: Option<Box<dyn super::ExternalSolve>>,
 }
 
 impl HelmholtzSolver {
@@ -218,6 +221,51 @@ impl HelmholtzSolver {
         // 5.3 s with Jacobi-CG), Jacobi-CG with warm start otherwise — H = W + cK is dominated
         // by the mass term W, so Jacobi converges in a few iterations, while a factor recomputed
         // every step (moving particles) costs far more (examples/bench). AMG-CG on request.
+        if let Some(ext) = self.external.as_mut() {
+            let t = Instant::now();
+            self.b.resize(m * D, 0.0);
+            self.x.resize(m * D, 0.0);
+            let xs = nl.search_positions();
+            let positions: Vec<f64> = a.particle.iter().flat_map(|&p| xs[p as usize]).collect();
+            let weights: Vec<f64> = a.particle.iter().map(|&p| vol[p as usize]).collect();
+            let mut info = SolveInfo {
+                solver: SolverKind::Cg,
+                unknowns: m,
+                nnz: a.nnz(),
+                pattern_rebuilt,
+                assemble_seconds,
+                ..Default::default()
+            };
+            for d in comps.clone() {
+                let (b, x) = (
+                    &mut self.b[d * m..(d + 1) * m],
+                    &mut self.x[d * m..(d + 1) * m],
+                );
+                for (uix, &p) in a.particle.iter().enumerate() {
+                    let p = p as usize;
+                    b[uix] = vol[p] * r[p][d] + rhs_const[uix][d];
+                    x[uix] = if params.warm_start { u[p][d] } else { 0.0 };
+                }
+                let ri = ext.solve(super::ExternalSystem {
+                    a,
+                    b,
+                    x,
+                    null: &[],
+                    positions: &positions,
+                    dim: D,
+                    params,
+                    weights: &weights,
+                })?;
+                info.iters += ri.iters;
+                info.abs_residual = info.abs_residual.max(ri.abs_residual);
+                info.rel_residual = info.rel_residual.max(ri.rel_residual);
+                for (uix, &p) in a.particle.iter().enumerate() {
+                    u[p as usize][d] = x[uix];
+                }
+            }
+            info.solve_seconds = t.elapsed().as_secs_f64();
+            return Ok(info);
+        }
         let kind = match params.solver {
             SolverKind::Auto => {
                 if D == 2 && m <= params.direct_limit && self.auto_factorisations < 2 {
