@@ -322,4 +322,19 @@ fn decomposed_particles_step_like_the_whole() {
         check_steps(cavity_sim, ranks, 20);
         check_steps(vortex_sim, ranks, 20);
     }
+    // moving particles are refused by name (not yet: migration inside a run)
+    let lag = cavity::build(&cavity::CavityConfig::default().with(|c| {
+        c.n = 16;
+        c.motion = Motion::Lagrangian;
+    }))
+    .unwrap();
+    let errs = ThreadComm::run(2, |comm| {
+        gpm::distributed::decomposed::DecomposedRun::new(comm, &lag)
+            .err()
+            .map(|e| e.to_string())
+    });
+    for e in errs {
+        let e = e.expect("a Lagrangian run is refused");
+        assert!(e.contains("fixed particles"), "{e}");
+    }
 }
