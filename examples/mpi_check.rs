@@ -185,10 +185,11 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
     let started = std::time::Instant::now();
     let mut run = DecomposedRun::new(comm, &global)?;
     drop(global);
-    let (mut t, mut diags) = (0.0, Vec::new());
+    let (mut t, mut diags, mut iters) = (0.0, Vec::new(), Vec::new());
     for _ in 0..a.steps {
         let rep = run.advance()?;
         diags.push(run.global_diagnostics(rep.time - t));
+        iters.push(rep.projection.solve.iters);
         t = rep.time;
     }
     let seconds = started.elapsed().as_secs_f64();
@@ -229,7 +230,9 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
             "scene": name, "ranks": comm.size(), "steps": a.steps, "decomposed": true,
             "max_velocity_difference": diff, "particles_compared": seen, "fluid_particles": fluid,
             "connectivity_equal_and_c0_to_1e-12": same_diagnostics,
-            "own_particles_per_rank": owned, "distributed_seconds": seconds, "ok": ok,
+            "own_particles_per_rank": owned, "distributed_seconds": seconds,
+            "mean_iterations": iters.iter().sum::<usize>() as f64 / iters.len().max(1) as f64,
+            "ok": ok,
         })
     );
     Ok(ok)
