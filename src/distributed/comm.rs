@@ -81,6 +81,22 @@ impl Comm for SelfComm {
 struct Mailboxes {
     /// Messages from → to, in the order sent.
     queues: HashMap<(usize, usize), VecDeque<Vec<f64>>>,
+    /// Ranks whose thread has ended (returned or panicked): a receive from one of them that
+    /// finds no message fails instead of waiting for ever.
+    ended: std::collections::HashSet<usize>,
+}
+
+/// Marks its rank ended when dropped (at the end of the rank's thread, also by a panic).
+struct Ended(ThreadComm);
+
+impl Drop for Ended {
+    fn drop(&mut self) {
+        let (lock, cv) = &*self.0.shared;
+        // a poisoned lock still holds the mailboxes
+        let mut g = lock.lock().unwrap_or_else(|e| e.into_inner());
+        g.ended.insert(self.0.rank);
+        cv.notify_all();
+    }
 }
 
 /// Ranks as threads of one process (messages through shared queues): the distributed
@@ -109,12 +125,13 @@ impl ThreadComm {
                         shared: shared.clone(),
                     };
                     let f = &f;
-                    s.spawn(
-                        move || match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+                    s.spawn(move || {
+                        let _ended = Ended(comm.clone());
+                        match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
                             Ok(pool) => pool.install(|| f(comm)),
                             Err(_) => f(comm),
-                        },
-                    )
+                        }
+                    })
                 })
                 .collect();
             handles
@@ -127,7 +144,7 @@ impl ThreadComm {
     fn send(&self, to: usize, data: Vec<f64>) {
         let (lock, cv) = &*self.shared;
         lock.lock()
-            .expect("mailbox lock")
+            .unwrap_or_else(|e| e.into_inner())
             .queues
             .entry((self.rank, to))
             .or_default()
@@ -135,9 +152,11 @@ impl ThreadComm {
         cv.notify_all();
     }
 
+    /// The next message from `from`; panics when `from` has ended without sending it (it
+    /// failed: under MPI the job would be aborted), rather than waiting for ever.
     fn receive(&self, from: usize) -> Vec<f64> {
         let (lock, cv) = &*self.shared;
-        let mut g = lock.lock().expect("mailbox lock");
+        let mut g = lock.lock().unwrap_or_else(|e| e.into_inner());
         loop {
             if let Some(m) = g
                 .queues
@@ -146,7 +165,12 @@ impl ThreadComm {
             {
                 return m;
             }
-            g = cv.wait(g).expect("mailbox lock");
+            assert!(
+                !g.ended.contains(&from),
+                "rank {}: rank {from} ended without sending the message waited for",
+                self.rank
+            );
+            g = cv.wait(g).unwrap_or_else(|e| e.into_inner());
         }
     }
 }
@@ -187,6 +211,19 @@ impl Comm for ThreadComm {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rank_that_fails_does_not_leave_the_others_waiting() {
+        let r = std::panic::catch_unwind(|| {
+            ThreadComm::run(3, |c| {
+                if c.rank() == 1 {
+                    panic!("rank 1 fails before the collective");
+                }
+                c.sum(&[1.0])
+            })
+        });
+        assert!(r.is_err(), "the failure reaches the caller");
+    }
 
     #[test]
     fn thread_ranks_gather_sum_and_exchange() {
