@@ -494,6 +494,15 @@ pub enum Error {
     /// The moment-consistent pair weights could not be computed.
     #[error(transparent)]
     PairWeights(#[from] PairWeightError),
+    /// A run decomposed over ranks: the step failed on other ranks (each reports its own
+    /// error); this rank stops with them.
+    #[error("step {step}: the step failed on {ranks} other rank(s), which report the cause")]
+    PeerFailed {
+        /// The step (1 for the first).
+        step: u64,
+        /// How many ranks failed.
+        ranks: usize,
+    },
 }
 
 /// `Result` with the crate's [`Error`](enum@Error).

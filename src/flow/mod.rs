@@ -266,9 +266,14 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     /// `(uⁿ⁺¹ − ũⁿ)/Δt` with `ũⁿ` the velocity carried to the moved position (empty before the
     /// first step); the next move adds `Δt²/2 a`.
     material_accel: Vec<[f64; D]>,
-    /// Lagrangian frame, incremental schemes: `∇pⁿ/ρ` at the end of the last step, on the
-    /// configuration the particles had then (empty before the first step).
+    /// Lagrangian frame, incremental schemes: `∇pⁿ/ρ` on the configuration `xⁿ` the last
+    /// step ended with (empty before the first step). Computed at the start of the next step,
+    /// before the particles move (`pressure_grad_due`): the same positions, neighbours and
+    /// pressure as at the end of the last one, but a caller can still bring the pressure of
+    /// particles it holds copies of up to date between the steps (the particle decomposition:
+    /// a halo particle's pressure update reads beyond the halo).
     old_pressure_grad: Vec<[f64; D]>,
+    pressure_grad_due: bool,
     /// The explicit acceleration handed to the predictor (scratch).
     extra_accel: Vec<[f64; D]>,
     convection: Convection<D>,
@@ -278,6 +283,25 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     pub pair_weights: crate::pair_weights::MomentWeights<D>,
     /// Free-surface detection and the full-lattice number density `n₀` it compares with.
     free_surface: Option<(FreeSurface, f64)>,
+    /// The largest speed of the moving particles for the Fickian shift's global speed, when
+    /// the caller knows it beyond this simulation's particles (the particle decomposition: the
+    /// maximum over every rank); `None`: the maximum over this simulation's particles.
+    pub(crate) shift_speed: Option<f64>,
+}
+
+/// What a Lagrangian step hands to the next for each particle besides its position,
+/// velocity, pressure and volume: the particle decomposition moves it with the particle to its
+/// new rank ([`Simulation::carried_state`], [`Simulation::set_carried_state`]). Indexed like
+/// the particles that are not ghosts (fluid, then a Dirichlet band); empty before the first
+/// step.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CarriedState<const D: usize> {
+    /// The material acceleration over the last step, `(uⁿ⁺¹ − ũⁿ)/Δt`: the next move adds
+    /// `Δt²/2 a`.
+    pub material_accel: Vec<[f64; D]>,
+    /// Whether the next step takes the pressure gradient at the configuration before its move
+    /// for the trapezoidal pressure term (incremental schemes after the first step).
+    pub pressure_grad_due: bool,
 }
 
 impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
@@ -338,11 +362,13 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             advect_u: Vec::new(),
             material_accel: Vec::new(),
             old_pressure_grad: Vec::new(),
+            pressure_grad_due: false,
             extra_accel: Vec::new(),
             convection: Convection::new(),
             prev_energy: None,
             pair_weights: Default::default(),
             free_surface: None,
+            shift_speed: None,
         };
         // predict and project act on the same configuration in every step of the driver
         sim.projection.overlap_solve_setup = true;
@@ -352,6 +378,50 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         sim.update_volumes()?;
         Ok(sim)
+    }
+
+    /// The particles that are not ghosts (fluid, then a Dirichlet band): they come first.
+    fn n_real(&self) -> usize {
+        let role = &self.particles.role;
+        role.iter().take_while(|r| r.is_real()).count()
+    }
+
+    /// The per-particle state a Lagrangian step carries to the next (see [`CarriedState`]).
+    pub fn carried_state(&self) -> CarriedState<D> {
+        let n = self.n_real();
+        let v = &self.material_accel;
+        CarriedState {
+            material_accel: v[..v.len().min(n)].to_vec(),
+            pressure_grad_due: self.pressure_grad_due,
+        }
+    }
+
+    /// Sets the per-particle state the next Lagrangian step starts from (the particle
+    /// decomposition: a rank's new particles with the state their last step left). The
+    /// material acceleration is empty (as before the first step) or has one entry per particle
+    /// that is not a ghost; fails naming it when it has not.
+    pub fn set_carried_state(&mut self, state: CarriedState<D>) -> Result<(), InputError> {
+        let n = self.n_real();
+        let v = &state.material_accel;
+        if !v.is_empty() && v.len() != n {
+            return Err(InputError::LengthMismatch {
+                field: "material_accel",
+                len: v.len(),
+                expected: n,
+            });
+        }
+        self.material_accel = state.material_accel;
+        if !self.material_accel.is_empty() {
+            // ghosts do not move
+            self.material_accel.resize(self.particles.len(), [0.0; D]);
+        }
+        self.pressure_grad_due = state.pressure_grad_due;
+        Ok(())
+    }
+
+    /// The kinetic energy after the last step (`None` before the first).
+    pub(crate) fn prev_energy(&self) -> Option<f64> {
+        self.prev_energy
     }
 
     /// The stages this simulation runs.
@@ -568,6 +638,17 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             .check_dt(self.steps + 1, dt, bound_limit, bound)?;
         let lagrangian = self.plan.has(Stage::Advection);
         let trapezoid = lagrangian && self.params.projection.scheme != Scheme::NonIncremental;
+        let mut grad_seconds = 0.0;
+        if std::mem::take(&mut self.pressure_grad_due) && trapezoid {
+            // ∇pⁿ at xⁿ for the trapezoidal term (the correction's operators)
+            let t = Instant::now();
+            let mut g = std::mem::take(&mut self.old_pressure_grad);
+            self.pressure_gradient_into(&mut g);
+            self.old_pressure_grad = g;
+            grad_seconds = t.elapsed().as_secs_f64();
+        } else {
+            self.old_pressure_grad.clear();
+        }
         let mut advect_seconds = 0.0;
         let mut moved = shifting::Moved::default();
         if lagrangian {
@@ -594,6 +675,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 self.free_surface.is_some(),
                 self.params.dx,
                 dt,
+                self.shift_speed,
                 WALL_MARGIN * self.params.dx,
                 &mut self.particles,
                 &mut u,
@@ -690,7 +772,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         } else {
             None
         };
-        let rhs_seconds = t_rhs.elapsed().as_secs_f64();
+        let rhs_seconds = t_rhs.elapsed().as_secs_f64() + grad_seconds;
         let proj = &self.params.projection;
         let mut u_star = Vec::new();
         let pred = self.projection.predict(
@@ -712,14 +794,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         )?;
         pred.add_to(&mut report);
         report.timings.predictor += rhs_seconds;
-        if trapezoid {
-            // ∇pⁿ⁺¹ at xⁿ⁺¹ for the next step's trapezoidal term (the correction's operators)
-            let t = Instant::now();
-            let mut g = std::mem::take(&mut self.old_pressure_grad);
-            self.pressure_gradient_into(&mut g);
-            self.old_pressure_grad = g;
-            report.timings.correction += t.elapsed().as_secs_f64();
-        }
+        // ∇pⁿ⁺¹ at xⁿ⁺¹ for the next step's trapezoidal term: taken when that step starts
+        self.pressure_grad_due = trapezoid;
         if lagrangian {
             let p = &self.particles;
             let band = self.free_surface.is_some();

@@ -186,6 +186,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     band_moves: bool,
     dx: f64,
     dt: f64,
+    global_speed: Option<f64>,
     margin: f64,
     p: &mut Particles<D>,
     u: &mut [[f64; D]],
@@ -206,10 +207,12 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     }
     let kernel = *nl.kernel();
     let h = nl.h();
-    let umax = (0..n)
-        .filter(|&i| moves(&p.role[i]))
-        .map(|i| norm2(&u[i]).sqrt())
-        .fold(0.0, f64::max);
+    let umax = global_speed.unwrap_or_else(|| {
+        (0..n)
+            .filter(|&i| moves(&p.role[i]))
+            .map(|i| norm2(&u[i]).sqrt())
+            .fold(0.0, f64::max)
+    });
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
     // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
     s.shift.resize(n, [0.0; D]);

@@ -502,9 +502,24 @@ pub struct ProjectionCapture<const D: usize> {
     pub phi: Vec<f64>,
 }
 
+/// Brings the copies a rank holds of other ranks' particles up to date (the particle
+/// decomposition, [`crate::distributed::decomposed`]): the projection calls it where a value it
+/// just computed at a copy would read beyond the copies (the pressure before its smoothing:
+/// the rotational term of a copy reads `u*` up to `2h` from the rank's own particles, where
+/// the global solves do not write). Collective: every rank's projection calls it at the same
+/// point of the step.
+pub trait HaloSync: Send + Sync + std::fmt::Debug {
+    /// Overwrites the entries of `values` (one per particle) at the copies with their owners'
+    /// values; the other entries are left as they are.
+    fn scalar(&mut self, values: &mut [f64]);
+}
+
 /// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
 #[derive(Debug, Default)]
 pub struct ProjectionStep<const D: usize> {
+    /// When set, the halo of copies of other ranks' particles is refreshed where the step needs
+    /// it (see [`HaloSync`]).
+    pub halo: Option<Box<dyn HaloSync>>,
     /// When true, [`project`](Self::project) stores its inputs and outputs in
     /// [`captured`](Self::captured) (for recording and re-running).
     pub capture: bool,
@@ -1249,6 +1264,9 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.p_new,
         );
         if params.pressure_smoothing > 0.0 && plan.pressure_gradient {
+            if let Some(h) = self.halo.as_mut() {
+                h.scalar(&mut self.p_new);
+            }
             if ghosts {
                 boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
             }
