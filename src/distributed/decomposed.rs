@@ -1,21 +1,34 @@
-//! A [`Simulation`] whose particles are decomposed over the ranks (issue 18, the full
-//! decomposition for fixed particles): each rank holds its own fluid particles and a halo of
-//! copies of other ranks' particles within `2(h + skin)` of its box, runs the ordinary step on
-//! them, and the two global solves of the step (the implicit viscous one and the Poisson one)
-//! go through the distributed CG on the ranks' local systems
+//! A [`Simulation`] whose particles are decomposed over the ranks (issue 18): each rank holds
+//! its own fluid particles and a halo of copies of other ranks' particles near its box, runs
+//! the ordinary step on them, and the two global solves of the step (the implicit viscous one
+//! and the Poisson one) go through the distributed CG on the ranks' local systems
 //! ([`DistributedPoisson::set_local`]).
 //!
-//! Why the step itself needs no change: before every step the halo's velocity and pressure are
-//! refreshed from their owners; an own particle's predictor reads its neighbours within `h`
-//! (all in the halo), the global solves write the own and halo unknowns, and the correction
+//! Why the step itself needs no change: an own particle's predictor reads its neighbours within
+//! `h` (all in the halo), the global solves write the own and halo unknowns, and the correction
 //! reads `φ` within `h` again. Everything computed *at* halo particles is discarded (their
-//! neighbourhoods are cut at the halo's edge); the `2(h + skin)` reach keeps the halo's first
-//! layer right for what the own rows read of it (number-density volumes, the explicit terms).
-//! `Δt` is the minimum over the ranks.
+//! neighbourhoods are cut at the halo's edge); the halo is deep enough that what the own rows
+//! read of it is right ([`HALO_LAYERS_FIXED`], [`HALO_LAYERS_MOVING`]). Where the step reads a
+//! value it has just computed at a halo particle beyond that (the pressure before its
+//! smoothing), the projection refreshes the halo from the owners ([`HaloSync`]). `Δt` is the
+//! minimum over the ranks; the guard's checks (energy growth, speed, correction ratio, the
+//! Theorem 4.5 ratio) are taken over every rank's own particles.
 //!
-//! Limits of this first stage: fixed particles (Eulerian frame), no Dirichlet band; the setup
-//! reads the whole scene on every rank (each keeps its share); the diagnostics in the step's
-//! report are the rank's own (the global ones: [`super::global_diagnostics`]).
+//! **Fixed particles** (Eulerian): the halo is planned once; before every step its velocity
+//! and pressure are refreshed from the owners. **Moving particles** (Lagrangian): after every
+//! step each rank sends its own particles to the ranks whose boxes hold their new positions
+//! ([`migrate`]), with what the next step needs of them (velocity, pressure, number-density
+//! volume, material acceleration: [`CarriedState`]); the cut of space is drawn again
+//! ([`RcbTree::balance`]) when the largest rank holds more than [`DecomposedRun::imbalance_limit`]
+//! times the mean; then the halo is planned and exchanged again and the rank's local
+//! simulation built anew on its particles. The trapezoidal pressure term's gradient at the old
+//! positions is taken when the next step starts, from the owners' pressures.
+//!
+//! Limits: no Dirichlet band (free surface); the setup reads the whole scene on every rank
+//! (each keeps its share); the diagnostics in the step's report are the rank's own (the global
+//! ones: [`DecomposedRun::global_diagnostics`]); the local simulation of a moving run is
+//! rebuilt every step (neighbour search included), where the single-process run keeps its
+//! candidates while the particles stay within the skin.
 
 use super::comm::Comm;
 use super::decomposition::{migrate, ParticleHalo, RcbTree};
@@ -24,43 +37,102 @@ use super::driver::Shared;
 use super::solver::{DdPreconditioner, DistributedPoisson};
 use crate::boundary::Boundary;
 use crate::diagnostics::connectivity;
-use crate::error::{Error, InputError};
-use crate::flow::{FlowReport, Motion, Simulation};
+use crate::error::{Error, InputError, StabilityError};
+use crate::flow::{CarriedState, FlowParams, FlowReport, Motion, Simulation, StabilityGuard};
+use crate::neighbors::NeighborConfig;
 use crate::particles::{Particles, Role};
+use crate::projection::HaloSync;
 use std::sync::{Arc, Mutex};
+
+/// Depth of the particle halo in `h + skin` for fixed particles: what an own row reads at
+/// a halo particle (its number-density volume, the explicit terms) is complete within one
+/// `h` of it.
+pub const HALO_LAYERS_FIXED: f64 = 2.0;
+
+/// Depth of the particle halo in `h + skin` for moving particles. The longest chain of reads
+/// within one step, counted from an own row: its Poisson and viscous rows read the volumes
+/// `ωⱼ` at the moved positions of the particles within `h` (1), each volume the moved
+/// positions within `h` of that particle (2), each moved position the state before the move
+/// within `h` (the shift, the Taylor correction's gradients: 3) — the volumes before the move
+/// travel with the particles, so the chain stops there. The second derivatives of the Taylor
+/// correction reach one `h` further, but only into the velocity of an own particle. Measured
+/// (`tests/distributed.rs`): 2 layers already reproduce the single-process run (the third
+/// link's pairs near `h` weigh almost nothing, and the default shift reads only `Δx`), 1 does
+/// not.
+pub const HALO_LAYERS_MOVING: f64 = 3.0;
+
+/// The numbers carried with a particle when it migrates or is copied into a halo, besides
+/// its position: global id, velocity, pressure, volume, material acceleration. (The pressure
+/// gradient of the trapezoidal term is taken when the next step starts, from these.)
+const fn record_width(d: usize) -> usize {
+    3 + 2 * d
+}
 
 /// A rank's part of a decomposed simulation.
 pub struct DecomposedRun<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> {
-    comm: C,
+    ctx: Context<C, D, B>,
     /// The rank's simulation: its own fluid particles first, then the halo, then ghosts.
     pub sim: Simulation<D, B>,
     /// Global index (in the scene's particle order) of each local fluid particle.
     gid: Vec<u32>,
     n_own: usize,
     halo: ParticleHalo,
+    /// The particles moved since the local simulation was built: migrate, re-balance and
+    /// rebuild before the next step.
+    moved: bool,
+    /// Re-balance (a new cut of space) when the largest rank holds more than this times the
+    /// mean number of particles (default 1.1).
+    pub imbalance_limit: f64,
+    /// The global kinetic energy after the last step (the guard's growth check).
+    prev_energy: Option<f64>,
+}
+
+/// What a rank keeps to build its local simulation again.
+struct Context<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> {
+    comm: C,
     tree: RcbTree<D>,
-    /// The scene's time-step limits (the step's own `Δt` is set from the global minimum).
-    limits: crate::flow::TimeStepLimits,
+    /// The scene's boundary, neighbour settings and parameters.
+    boundary: B,
+    config: NeighborConfig<D>,
+    params: FlowParams<D>,
+    /// Whether the global Poisson problem has the constants as null space.
+    floating: bool,
+    /// Depth of the particle halo (distance from the rank's box).
+    reach: f64,
+    counts: DecompositionCounts,
     /// The Poisson solver (shared with the projection, which calls it).
     poisson: Arc<Mutex<DistributedPoisson<C>>>,
+    /// The implicit viscous solver (Jacobi-CG, no null space).
+    viscous: Arc<Mutex<DistributedPoisson<C>>>,
+}
+
+/// A rank's local particles: the simulation, global ids, own count, halo plan.
+type Local<const D: usize, B> = (Simulation<D, B>, Vec<u32>, usize, ParticleHalo);
+
+/// What the decomposition of a moving run did so far (this rank's counts).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DecompositionCounts {
+    /// Local simulations built (one at the start, then one per step of a moving run).
+    pub rebuilds: u64,
+    /// New cuts of space after the first.
+    pub rebalances: u64,
+    /// Own particles sent to another rank (they left this rank's box).
+    pub migrated: u64,
+    /// Halo particles received, summed over the rebuilds.
+    pub halo_received: u64,
 }
 
 impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> DecomposedRun<C, D, B> {
     /// This rank's part of the scene `global` (every rank passes the same one): the particles
     /// cut by a parallel RCB, the halo exchanged, a local simulation with the scene's boundary,
-    /// neighbour settings and parameters, and the distributed solvers installed. Fails for a
-    /// moving frame or a Dirichlet band (not supported yet).
+    /// neighbour settings and parameters, and the distributed solvers installed. Fixed
+    /// particles (Eulerian) and moving ones (Lagrangian: after every step the particles
+    /// migrate to the rank whose box holds them, with their carried state, the cut is
+    /// re-balanced when needed, and the halo and local simulation are built again). Fails for
+    /// a Dirichlet band (not supported yet).
     pub fn new(comm: C, global: &Simulation<D, B>) -> Result<Self, Error> {
         let (p, me) = (comm.size(), comm.rank());
         let gp = &global.particles;
-        if global.params.motion != Motion::Eulerian {
-            return Err(InputError::parameter(
-                "motion",
-                0.0,
-                "the particle decomposition runs fixed particles (Eulerian) only so far",
-            )
-            .into());
-        }
         if gp.role.contains(&Role::Dirichlet) {
             return Err(InputError::parameter(
                 "role",
@@ -69,75 +141,208 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             )
             .into());
         }
+        let moving = global.params.motion != Motion::Eulerian;
+        let config = *global.nl.config();
+        let layers = if moving {
+            HALO_LAYERS_MOVING
+        } else {
+            HALO_LAYERS_FIXED
+        };
         let fluid: Vec<usize> = (0..gp.len()).filter(|&i| gp.role[i].is_fluid()).collect();
         let share: Vec<usize> = fluid.iter().copied().filter(|i| i % p == me).collect();
         let x: Vec<[f64; D]> = share.iter().map(|&i| gp.x[i]).collect();
         let tree = RcbTree::balance(&comm, &x);
-        let ids: Vec<f64> = share.iter().map(|&i| i as f64).collect();
-        let (own_x, own_ids) = migrate(&comm, &tree, &x, &ids, 1);
-        let config = *global.nl.config();
-        let reach = 2.0 * (config.h + config.skin);
-        let halo = ParticleHalo::new(&comm, &tree, &own_x, reach, &config.periodic);
-        let halo_ids = halo.exchange(&comm, &own_ids, 1);
-        let gid: Vec<u32> = own_ids.iter().chain(&halo_ids).map(|&v| v as u32).collect();
-        let mut local = Particles::new();
-        for &g in &gid {
-            let g = g as usize;
-            local.push(gp.x[g], gp.u[g], gp.p[g], gp.vol[g], Role::Fluid);
-        }
-        let mut sim = Simulation::new(local, global.boundary.clone(), config, global.params)?;
+        let carried = global.carried_state();
+        let records = pack(gp, &carried, share.iter().map(|&i| (i, i as u32)));
         let comps = connectivity(&global.nl, &gp.role);
         let floating = !comps.floating().is_empty();
-        let poisson = install(&comm, &mut sim, &gid, own_ids.len(), &halo, floating);
-        let limits = sim.params.limits;
-        Ok(DecomposedRun {
+        let new_solver = |pre: Option<DdPreconditioner>| {
+            let mut s = DistributedPoisson::new(comm.clone());
+            if let Some(pre) = pre {
+                s.preconditioner = pre;
+            }
+            Arc::new(Mutex::new(s))
+        };
+        let poisson = new_solver(None);
+        let viscous = new_solver(Some(DdPreconditioner::Jacobi));
+        let (own_x, own_recs) = migrate(&comm, &tree, &x, &records, record_width(D));
+        let mut ctx = Context {
             comm,
+            tree,
+            boundary: global.boundary.clone(),
+            config,
+            params: global.params,
+            floating,
+            reach: layers * (config.h + config.skin),
+            counts: DecompositionCounts::default(),
+            poisson,
+            viscous,
+        };
+        let (sim, gid, n_own, halo) = ctx.build(
+            own_x,
+            own_recs,
+            !carried.material_accel.is_empty(),
+            carried.pressure_grad_due,
+            (global.time, global.steps),
+        )?;
+        Ok(DecomposedRun {
+            ctx,
             sim,
             gid,
-            n_own: own_ids.len(),
+            n_own,
             halo,
-            tree,
-            limits,
-            poisson,
+            moved: false,
+            imbalance_limit: 1.1,
+            prev_energy: global.prev_energy(),
         })
     }
-}
 
-/// Plugs the distributed solvers (local mode) into `sim`'s Poisson and viscous solves: `gid`
-/// of the local fluid particles (own first, `n_own` of them, then the halo in `halo`'s
-/// receive order).
-fn install<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>>(
-    comm: &C,
-    sim: &mut Simulation<D, B>,
-    gid: &[u32],
-    n_own: usize,
-    halo: &ParticleHalo,
-    floating: bool,
-) -> Arc<Mutex<DistributedPoisson<C>>> {
-    let n = sim.particles.len();
-    let me = comm.rank() as u32;
-    let mut gid = gid.to_vec();
-    gid.resize(n, u32::MAX);
-    let mut owner = vec![me; n];
-    let mut k = n_own;
-    for &(q, count) in &halo.recvs {
-        for o in &mut owner[k..k + count] {
-            *o = q as u32;
+    /// After a moving step: every own particle to the rank whose box holds it (a new cut of
+    /// space first when the ranks' counts drift apart), with its record, and the local
+    /// simulation built again.
+    fn redistribute(&mut self) -> Result<(), Error> {
+        let n_own = self.n_own;
+        let p = &self.sim.particles;
+        let carried = self.sim.carried_state();
+        let records = pack(p, &carried, (0..n_own).map(|i| (i, self.gid[i])));
+        let x: Vec<[f64; D]> = p.x[..n_own].to_vec();
+        let ctx = &mut self.ctx;
+        let largest = ctx.comm.max(&[n_own as f64])[0];
+        let mean = ctx.comm.sum(&[n_own as f64])[0] / ctx.comm.size() as f64;
+        if largest > self.imbalance_limit * mean {
+            ctx.tree = RcbTree::balance(&ctx.comm, &x);
+            ctx.counts.rebalances += 1;
         }
-        k += count;
+        let me = ctx.comm.rank();
+        ctx.counts.migrated += x.iter().filter(|xi| ctx.tree.owner(xi) != me).count() as u64;
+        let (x, records) = migrate(&ctx.comm, &ctx.tree, &x, &records, record_width(D));
+        let clock = (self.sim.time, self.sim.steps);
+        let (accel, grad) = (
+            !carried.material_accel.is_empty(),
+            carried.pressure_grad_due,
+        );
+        (self.sim, self.gid, self.n_own, self.halo) = ctx.build(x, records, accel, grad, clock)?;
+        self.moved = false;
+        Ok(())
     }
-    let mut poisson = DistributedPoisson::new(comm.clone());
-    poisson.set_local(gid.clone(), owner.clone(), floating);
-    let poisson = Arc::new(Mutex::new(poisson));
-    sim.projection.solver.external = Some(Box::new(Shared(poisson.clone())));
-    let mut viscous = DistributedPoisson::new(comm.clone());
-    viscous.preconditioner = DdPreconditioner::Jacobi;
-    viscous.set_local(gid, owner, false);
-    sim.projection.viscous.external = Some(Box::new(viscous));
-    poisson
 }
 
-impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> DecomposedRun<C, D, B> {
+impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<C, D, B> {
+    /// The local simulation for the own particles at `x` with their `records`: the halo
+    /// planned and exchanged, the simulation built from the scene's settings with the owners'
+    /// volumes and carried state, and the distributed solvers set to the new local systems.
+    fn build(
+        &mut self,
+        x: Vec<[f64; D]>,
+        records: Vec<f64>,
+        accel: bool,
+        grad: bool,
+        clock: (f64, u64),
+    ) -> Result<Local<D, B>, Error> {
+        let w = record_width(D);
+        let n_own = x.len();
+        let halo = ParticleHalo::new(
+            &self.comm,
+            &self.tree,
+            &x,
+            self.reach,
+            &self.config.periodic,
+        );
+        let mut own = Vec::with_capacity(n_own * (D + w));
+        for (xi, rec) in x.iter().zip(records.chunks_exact(w)) {
+            own.extend_from_slice(xi);
+            own.extend_from_slice(rec);
+        }
+        let got = halo.exchange(&self.comm, &own, D + w);
+        let all: Vec<&[f64]> = own
+            .chunks_exact(D + w)
+            .chain(got.chunks_exact(D + w))
+            .collect();
+        let mut local = Particles::new();
+        let mut carried = CarriedState {
+            pressure_grad_due: grad,
+            ..Default::default()
+        };
+        let mut gid = Vec::with_capacity(all.len());
+        for rec in &all {
+            let xi: [f64; D] = std::array::from_fn(|a| rec[a]);
+            let r = &rec[D..];
+            let u: [f64; D] = std::array::from_fn(|a| r[1 + a]);
+            local.push(xi, u, r[1 + D], r[2 + D], Role::Fluid);
+            gid.push(r[0] as u32);
+            if accel {
+                carried
+                    .material_accel
+                    .push(std::array::from_fn(|a| r[3 + D + a]));
+            }
+        }
+        let vol = local.vol.clone();
+        let mut sim = Simulation::new(local, self.boundary.clone(), self.config, self.params)?;
+        // the owners' volumes: a halo particle's neighbourhood is cut at the halo's edge
+        sim.particles.vol[..vol.len()].copy_from_slice(&vol);
+        sim.boundary.place_ghosts(&mut sim.particles);
+        sim.set_carried_state(carried)?;
+        (sim.time, sim.steps) = (clock.0, clock.1);
+        sim.projection.solver.external = Some(Box::new(Shared(self.poisson.clone())));
+        sim.projection.viscous.external = Some(Box::new(Shared(self.viscous.clone())));
+        sim.projection.halo = Some(Box::new(Sync {
+            comm: self.comm.clone(),
+            halo: halo.clone(),
+            n_own,
+        }));
+        let n = sim.particles.len();
+        let me = self.comm.rank() as u32;
+        let mut owner = vec![me; n];
+        let mut k = n_own;
+        for &(q, count) in &halo.recvs {
+            owner[k..k + count].fill(q as u32);
+            k += count;
+        }
+        let mut full_gid = gid.clone();
+        full_gid.resize(n, u32::MAX);
+        for (s, floating) in [(&self.poisson, self.floating), (&self.viscous, false)] {
+            let mut s = s.lock().expect("distributed solver lock");
+            s.set_local(full_gid.clone(), owner.clone(), floating);
+        }
+        self.counts.rebuilds += 1;
+        self.counts.halo_received += halo.n_halo() as u64;
+        Ok((sim, gid, n_own, halo))
+    }
+}
+
+/// The copies of other ranks' particles refreshed from their owners, for the projection.
+#[derive(Debug)]
+struct Sync<C: Comm> {
+    comm: C,
+    halo: ParticleHalo,
+    n_own: usize,
+}
+
+impl<C: Comm> HaloSync for Sync<C> {
+    fn scalar(&mut self, values: &mut [f64]) {
+        let got = self.halo.exchange(&self.comm, &values[..self.n_own], 1);
+        values[self.n_own..self.n_own + got.len()].copy_from_slice(&got);
+    }
+}
+
+/// The records (see [`record_width`]) of the particles `(i, global id)` of `p`.
+fn pack<const D: usize>(
+    p: &Particles<D>,
+    carried: &CarriedState<D>,
+    which: impl Iterator<Item = (usize, u32)>,
+) -> Vec<f64> {
+    let mut out = Vec::new();
+    for (i, g) in which {
+        out.push(g as f64);
+        out.extend_from_slice(&p.u[i]);
+        out.push(p.p[i]);
+        out.push(p.vol[i]);
+        out.extend_from_slice(&carried.material_accel.get(i).copied().unwrap_or([0.0; D]));
+    }
+    out
+}
+
+impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> DecomposedRun<C, D, B> {
     /// Own fluid particles of this rank.
     pub fn n_own(&self) -> usize {
         self.n_own
@@ -148,33 +353,179 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> DecomposedRun<C,
         &self.gid[..self.n_own]
     }
 
-    /// The cut of space.
-    pub fn tree(&self) -> &RcbTree<D> {
-        &self.tree
+    /// The scene index of each local fluid particle (own, then halo).
+    pub fn local_ids(&self) -> &[u32] {
+        &self.gid
     }
 
-    /// One step of every rank (collective): the halo's velocity and pressure from their
-    /// owners, `Δt` the minimum over the ranks, then the rank's step.
+    /// The cut of space.
+    pub fn tree(&self) -> &RcbTree<D> {
+        &self.ctx.tree
+    }
+
+    /// What the decomposition did so far on this rank.
+    pub fn counts(&self) -> DecompositionCounts {
+        self.ctx.counts
+    }
+
+    /// Halo particles of this rank now.
+    pub fn n_halo(&self) -> usize {
+        self.halo.n_halo()
+    }
+
+    /// One step of every rank (collective). Moving particles: the own particles migrate
+    /// after the last step and the local simulation is built again (halo included);
+    /// fixed ones: the halo's velocity and pressure from their owners. `Δt` (and the speed
+    /// of a Fickian shift with a global speed) the extreme over the ranks, then the rank's
+    /// step.
     pub fn advance(&mut self) -> Result<FlowReport, Error> {
-        let w = D + 1;
-        let p = &self.sim.particles;
-        let mut own = Vec::with_capacity(self.n_own * w);
-        for i in 0..self.n_own {
-            own.extend_from_slice(&p.u[i]);
-            own.push(p.p[i]);
+        if self.moved {
+            self.redistribute()?;
+        } else {
+            let w = D + 1;
+            let p = &self.sim.particles;
+            let mut own = Vec::with_capacity(self.n_own * w);
+            for i in 0..self.n_own {
+                own.extend_from_slice(&p.u[i]);
+                own.push(p.p[i]);
+            }
+            let got = self.halo.exchange(&self.ctx.comm, &own, w);
+            let p = &mut self.sim.particles;
+            for (k, rec) in got.chunks_exact(w).enumerate() {
+                let i = self.n_own + k;
+                p.u[i] = std::array::from_fn(|a| rec[a]);
+                p.p[i] = rec[D];
+            }
         }
-        let got = self.halo.exchange(&self.comm, &own, w);
-        let p = &mut self.sim.particles;
-        for (k, rec) in got.chunks_exact(w).enumerate() {
-            let i = self.n_own + k;
-            p.u[i] = std::array::from_fn(|a| rec[a]);
-            p.p[i] = rec[D];
-        }
-        self.sim.params.limits = self.limits;
+        self.sim.params.limits = self.ctx.params.limits;
         let (dt, _) = self.sim.time_step();
-        let dt = -self.comm.max(&[-dt])[0];
-        self.sim.params.limits.dt_fixed = Some(dt);
-        self.sim.advance()
+        let p = &self.sim.particles;
+        let speed = (0..self.n_own)
+            .map(|i| p.u[i].iter().map(|c| c * c).sum::<f64>().sqrt())
+            .fold(0.0, f64::max);
+        let m = self.ctx.comm.max(&[-dt, speed]);
+        self.sim.params.limits.dt_fixed = Some(-m[0]);
+        self.sim.shift_speed = Some(m[1]);
+        // the report's guard checks over every rank's own particles (the local sums hold the
+        // halo, whose values after the step are not all right, and a rank's energy can grow
+        // faster than the whole's): only the time-step check stays local (a rank's bound
+        // covers its own particles, and the halo's are not smaller)
+        let guard = self.ctx.params.limits.guard;
+        self.sim.params.limits.guard = StabilityGuard {
+            dt_over_limit: guard.dt_over_limit,
+            ..Default::default()
+        };
+        let dt = -m[0];
+        let report = self.sim.advance();
+        // every rank takes part in the global check, also one whose step failed
+        let checked = self.check_guard(&guard, report.as_ref().ok(), dt);
+        self.moved = self.sim.params.motion != Motion::Eulerian;
+        let report = report?;
+        checked?;
+        Ok(report)
+    }
+
+    /// The guard of the scene over the own particles of every rank (collective): energy
+    /// growth, speed, correction ratio and (when set) the Theorem 4.5 ratio from global sums.
+    /// A rank whose step failed passes `None`; the others then fail too.
+    fn check_guard(
+        &mut self,
+        guard: &StabilityGuard,
+        report: Option<&FlowReport>,
+        dt: f64,
+    ) -> Result<(), Error> {
+        let failed = report.is_none() as u8 as f64;
+        let p = &self.sim.particles;
+        let (u_star, vol, rho) = (
+            self.sim.projection.u_star(),
+            &p.vol,
+            self.sim.params.projection.rho,
+        );
+        let (mut ke, mut num, mut den, mut fastest) = (0.0, 0.0, 0.0, (0usize, -1.0f64));
+        if report.is_some() {
+            for i in 0..self.n_own {
+                let u2: f64 = p.u[i].iter().map(|c| c * c).sum();
+                ke += 0.5 * rho * vol[i] * u2;
+                let d2: f64 = (0..D).map(|a| (p.u[i][a] - u_star[i][a]).powi(2)).sum();
+                num += vol[i] * d2;
+                den += vol[i] * u_star[i].iter().map(|c| c * c).sum::<f64>();
+                if u2 > fastest.1 {
+                    fastest = (i, u2);
+                }
+            }
+        }
+        let s = self.ctx.comm.sum(&[ke, num, den, failed]);
+        // the fastest particle of all: speed, global id and position from every rank
+        let mut mine = vec![fastest.1.max(0.0).sqrt(), -1.0];
+        mine.extend_from_slice(&[0.0; D]);
+        if fastest.1 >= 0.0 {
+            mine[1] = self.gid[fastest.0] as f64;
+            mine[2..].copy_from_slice(&p.x[fastest.0]);
+        }
+        let best = self
+            .ctx
+            .comm
+            .all_gather(&mine)
+            .into_iter()
+            .fold(mine.clone(), |a, b| if b[0] > a[0] { b } else { a });
+        if s[3] > failed {
+            return Err(Error::PeerFailed {
+                step: self.sim.steps + 1,
+                ranks: (s[3] - failed) as usize,
+            });
+        }
+        let Some(report) = report else {
+            return Ok(());
+        };
+        let mut global = report.projection;
+        global.kinetic_energy = s[0];
+        global.max_speed = best[0];
+        global.correction_ratio = if s[2] > 0.0 {
+            (s[1] / s[2]).sqrt()
+        } else {
+            0.0
+        };
+        if guard.stability_ratio.is_some() {
+            global.stability_ratio = self.global_diagnostics(dt).stability_ratio;
+        }
+        // the fastest particle, as the guard names it
+        let mut one = Particles::new();
+        let x: [f64; D] = std::array::from_fn(|a| best[2 + a]);
+        let u: [f64; D] = std::array::from_fn(|a| if a == 0 { best[0] } else { 0.0 });
+        one.push(x, u, 0.0, 1.0, Role::Fluid);
+        let mut prev = self.prev_energy;
+        let out = guard.check_report(
+            &global,
+            self.ctx.params.limits.u_ref,
+            &mut prev,
+            &one,
+            report.step,
+            report.time,
+        );
+        self.prev_energy = prev;
+        out.map_err(|e| match e {
+            StabilityError::BlowUp {
+                step,
+                time,
+                quantity,
+                value,
+                bound,
+                position,
+                speed,
+                ..
+            } => StabilityError::BlowUp {
+                step,
+                time,
+                quantity,
+                value,
+                bound,
+                particle: best[1].max(0.0) as usize,
+                position,
+                speed,
+            },
+            e => e,
+        })?;
+        Ok(())
     }
 
     /// The global diagnostics of the step just taken (collective): components joined through
@@ -189,7 +540,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> DecomposedRun<C,
             .iter()
             .map(|u| u.map(|c| scale * c))
             .collect();
-        let mut dd = self.poisson.lock().expect("distributed solver lock");
+        let mut dd = self.ctx.poisson.lock().expect("distributed solver lock");
         global_diagnostics(
             &mut dd,
             &sim.projection.solver.assembly,

@@ -18,8 +18,9 @@
 //! solve. So memory does not shrink with the ranks and only the solve's work is divided; the
 //! message counts of a fully distributed step (particle halo within `h` + skin) are modelled
 //! in `docs/mpi.md`. Recording: rank 0 writes the one MCAP file; it holds every particle, so
-//! the snapshots need no gather. The full decomposition exists for fixed particles
-//! ([`decomposed::DecomposedRun`], tested on thread ranks, not yet behind `gpm run`): the
+//! the snapshots need no gather. The full decomposition exists for fixed and moving particles
+//! ([`decomposed::DecomposedRun`], tested on thread ranks and under MPI by
+//! `examples/mpi_check`, not yet behind `gpm run`): the
 //! particles cut, migrated and given a halo ([`decomposition`]), a rank's rows taken from its
 //! local matrix ([`halo::LocalRows::from_local`]) and both global solves of the step on the
 //! local systems ([`DistributedPoisson::set_local`]).
