@@ -5,7 +5,12 @@
 //! mpirun -n 4 --oversubscribe target/release/examples/mpi_check [--steps 20] [--tg-n 128]
 //!     [--cavity-n 64] [--preconditioner jacobi|block_amg|block_amg_coarse|schwarz|chebyshev]
 //!     [--aggregate-size 16] [--chebyshev-degree 2] [--decomposed true]
+//!     [--motion eulerian|lagrangian]
 //! ```
+//!
+//! `--motion lagrangian` (with `--decomposed true`) moves the particles: after every step they
+//! migrate to the rank whose box holds them, with their carried state, and the halo is built
+//! again; the positions are compared too.
 //!
 //! With `--decomposed true` every rank holds only its own particles and their halo
 //! (`gpm::distributed::decomposed::DecomposedRun`: the particle decomposition, both global
@@ -37,6 +42,8 @@ struct Args {
     chebyshev_degree: usize,
     /// Each rank holds only its own particles and their halo (`DecomposedRun`).
     decomposed: bool,
+    /// The frame of both scenes (moving particles only with `decomposed`).
+    motion: Motion,
 }
 
 fn args() -> Result<Args> {
@@ -48,6 +55,7 @@ fn args() -> Result<Args> {
         aggregate_size: 16,
         chebyshev_degree: 2,
         decomposed: false,
+        motion: Motion::Eulerian,
     };
     let v: Vec<String> = std::env::args().skip(1).collect();
     for pair in v.chunks(2) {
@@ -59,11 +67,18 @@ fn args() -> Result<Args> {
             "--aggregate-size" => a.aggregate_size = value.parse()?,
             "--chebyshev-degree" => a.chebyshev_degree = value.parse()?,
             "--decomposed" => a.decomposed = value.parse()?,
+            "--motion" => a.motion = value.parse().map_err(anyhow::Error::msg)?,
             "--preconditioner" => {
                 a.preconditioner = serde_json::from_value(serde_json::Value::String(value.clone()))?
             }
             o => bail!("unknown option {o}"),
         }
+    }
+    if a.motion != Motion::Eulerian && !a.decomposed {
+        bail!(
+            "--motion {:?} needs --decomposed true (the replicated run is for fixed particles)",
+            a.motion
+        );
     }
     Ok(a)
 }
@@ -177,7 +192,13 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
     let serial = if rank == 0 {
         let mut sim = build()?;
         let reps = steps(&mut sim, a.steps, |_, _| Ok(()))?;
-        Some((reps, sim.particles.u.clone()))
+        let fluid = sim.particles.role.iter().filter(|r| r.is_fluid()).count();
+        Some((
+            reps,
+            sim.particles.u.clone(),
+            sim.particles.x.clone(),
+            fluid,
+        ))
     } else {
         None
     };
@@ -198,37 +219,34 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
         .own_ids()
         .iter()
         .enumerate()
-        .flat_map(|(i, &g)| [g as f64, p.u[i][0], p.u[i][1]])
+        .flat_map(|(i, &g)| [g as f64, p.u[i][0], p.u[i][1], p.x[i][0], p.x[i][1]])
         .collect();
     let all = comm.all_gather(&mine);
-    let Some((sreps, su)) = serial else {
+    let counts = run.counts();
+    let migrated = comm.sum(&[counts.migrated as f64, counts.rebalances as f64]);
+    let Some((sreps, su, sx, fluid)) = serial else {
         return Ok(true);
     };
     let mut seen = 0usize;
-    let mut diff = 0.0f64;
-    for rec in all.iter().flat_map(|v| v.chunks_exact(3)) {
+    let (mut diff, mut dx) = (0.0f64, 0.0f64);
+    for rec in all.iter().flat_map(|v| v.chunks_exact(5)) {
         let g = rec[0] as usize;
         diff = diff.max((rec[1] - su[g][0]).abs().max((rec[2] - su[g][1]).abs()));
+        dx = dx.max((rec[3] - sx[g][0]).abs().max((rec[4] - sx[g][1]).abs()));
         seen += 1;
     }
-    let fluid = su.len()
-        - build()?
-            .particles
-            .role
-            .iter()
-            .filter(|r| !r.is_fluid())
-            .count();
     let same_diagnostics = diags.iter().zip(&sreps).all(|(d, s)| {
         d.connectivity == s.projection.connectivity
             && (d.c0 - s.projection.c0).abs() <= 1e-12 * s.projection.c0
     });
-    let owned: Vec<f64> = all.iter().map(|v| (v.len() / 3) as f64).collect();
-    let ok = diff <= 1e-9 && same_diagnostics && seen == fluid;
+    let owned: Vec<f64> = all.iter().map(|v| (v.len() / 5) as f64).collect();
+    let ok = diff <= 1e-9 && dx <= 1e-9 && same_diagnostics && seen == fluid;
     println!(
         "{}",
         serde_json::json!({
             "scene": name, "ranks": comm.size(), "steps": a.steps, "decomposed": true,
-            "max_velocity_difference": diff, "particles_compared": seen, "fluid_particles": fluid,
+            "motion": format!("{:?}", a.motion), "max_velocity_difference": diff,
+            "max_position_difference": dx, "migrations": migrated[0], "rebalances": migrated[1], "particles_compared": seen, "fluid_particles": fluid,
             "connectivity_equal_and_c0_to_1e-12": same_diagnostics,
             "own_particles_per_rank": owned, "distributed_seconds": seconds,
             "mean_iterations": iters.iter().sum::<usize>() as f64 / iters.len().max(1) as f64,
@@ -243,12 +261,12 @@ fn main() -> Result<()> {
     let a = args()?;
     let tg = taylor_green::TaylorGreenConfig::default().with(|c| {
         c.n = a.tg_n;
-        c.motion = Motion::Eulerian;
+        c.motion = a.motion;
         c.solve.rel_tol = 1e-12;
     });
     let cav = cavity::CavityConfig::default().with(|c| {
         c.n = a.cavity_n;
-        c.motion = Motion::Eulerian;
+        c.motion = a.motion;
         c.solve.rel_tol = 1e-12;
     });
     let (ok_tg, ok_cav) = if a.decomposed {
