@@ -62,10 +62,11 @@ pub const HALO_LAYERS_FIXED: f64 = 2.0;
 pub const HALO_LAYERS_MOVING: f64 = 3.0;
 
 /// The numbers carried with a particle when it migrates or is copied into a halo, besides
-/// its position: global id, velocity, pressure, volume, material acceleration. (The pressure
-/// gradient of the trapezoidal term is taken when the next step starts, from these.)
+/// its position: global id, velocity, pressure, volume, material acceleration, and the
+/// Poisson warm start's last two increments `φⁿ`, `φⁿ⁻¹`. (The pressure gradient of the
+/// trapezoidal term is taken when the next step starts, from these.)
 const fn record_width(d: usize) -> usize {
-    3 + 2 * d
+    5 + 2 * d
 }
 
 /// A rank's part of a decomposed simulation.
@@ -153,7 +154,13 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let x: Vec<[f64; D]> = share.iter().map(|&i| gp.x[i]).collect();
         let tree = RcbTree::balance(&comm, &x);
         let carried = global.carried_state();
-        let records = pack(gp, &carried, share.iter().map(|&i| (i, i as u32)));
+        let (phi, phi_prev, dt_prev) = global.projection.warm_start();
+        let records = pack(
+            gp,
+            &carried,
+            (phi, phi_prev),
+            share.iter().map(|&i| (i, i as u32)),
+        );
         let comps = connectivity(&global.nl, &gp.role);
         let floating = !comps.floating().is_empty();
         let new_solver = |pre: Option<DdPreconditioner>| {
@@ -184,6 +191,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             !carried.material_accel.is_empty(),
             carried.pressure_grad_due,
             (global.time, global.steps),
+            warm_history(phi, phi_prev, dt_prev),
         )?;
         Ok(DecomposedRun {
             ctx,
@@ -204,7 +212,14 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let n_own = self.n_own;
         let p = &self.sim.particles;
         let carried = self.sim.carried_state();
-        let records = pack(p, &carried, (0..n_own).map(|i| (i, self.gid[i])));
+        let (phi, phi_prev, dt_prev) = self.sim.projection.warm_start();
+        let warm = warm_history(phi, phi_prev, dt_prev);
+        let records = pack(
+            p,
+            &carried,
+            (phi, phi_prev),
+            (0..n_own).map(|i| (i, self.gid[i])),
+        );
         let x: Vec<[f64; D]> = p.x[..n_own].to_vec();
         let ctx = &mut self.ctx;
         let largest = ctx.comm.max(&[n_own as f64])[0];
@@ -221,7 +236,8 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             !carried.material_accel.is_empty(),
             carried.pressure_grad_due,
         );
-        (self.sim, self.gid, self.n_own, self.halo) = ctx.build(x, records, accel, grad, clock)?;
+        (self.sim, self.gid, self.n_own, self.halo) =
+            ctx.build(x, records, accel, grad, clock, warm)?;
         self.moved = false;
         Ok(())
     }
@@ -238,6 +254,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
         accel: bool,
         grad: bool,
         clock: (f64, u64),
+        warm: Option<(f64, bool)>,
     ) -> Result<Local<D, B>, Error> {
         let w = record_width(D);
         let n_own = x.len();
@@ -264,12 +281,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
             ..Default::default()
         };
         let mut gid = Vec::with_capacity(all.len());
+        let (mut phi, mut phi_prev) = (Vec::new(), Vec::new());
         for rec in &all {
             let xi: [f64; D] = std::array::from_fn(|a| rec[a]);
             let r = &rec[D..];
             let u: [f64; D] = std::array::from_fn(|a| r[1 + a]);
             local.push(xi, u, r[1 + D], r[2 + D], Role::Fluid);
             gid.push(r[0] as u32);
+            phi.push(r[3 + 2 * D]);
+            phi_prev.push(r[4 + 2 * D]);
             if accel {
                 carried
                     .material_accel
@@ -282,6 +302,13 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
         sim.particles.vol[..vol.len()].copy_from_slice(&vol);
         sim.boundary.place_ghosts(&mut sim.particles);
         sim.set_carried_state(carried)?;
+        if let Some((dt_prev, before)) = warm {
+            // the ghosts' entries are not unknowns: zero
+            let n = sim.particles.len();
+            phi.resize(n, 0.0);
+            phi_prev.resize(if before { n } else { 0 }, 0.0);
+            sim.projection.set_warm_start(phi, phi_prev, dt_prev);
+        }
         (sim.time, sim.steps) = (clock.0, clock.1);
         sim.projection.solver.external = Some(Box::new(Shared(self.poisson.clone())));
         sim.projection.viscous.external = Some(Box::new(Shared(self.viscous.clone())));
@@ -310,6 +337,12 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
     }
 }
 
+/// The warm start's history to hand on: the last `Δt` once a step was taken, and whether
+/// the increment before the last one is there too.
+fn warm_history(phi: &[f64], phi_prev: &[f64], dt_prev: f64) -> Option<(f64, bool)> {
+    (dt_prev > 0.0 && !phi.is_empty()).then_some((dt_prev, !phi_prev.is_empty()))
+}
+
 /// The copies of other ranks' particles refreshed from their owners, for the projection.
 #[derive(Debug)]
 struct Sync<C: Comm> {
@@ -329,6 +362,7 @@ impl<C: Comm> HaloSync for Sync<C> {
 fn pack<const D: usize>(
     p: &Particles<D>,
     carried: &CarriedState<D>,
+    warm: (&[f64], &[f64]),
     which: impl Iterator<Item = (usize, u32)>,
 ) -> Vec<f64> {
     let mut out = Vec::new();
@@ -338,6 +372,8 @@ fn pack<const D: usize>(
         out.push(p.p[i]);
         out.push(p.vol[i]);
         out.extend_from_slice(&carried.material_accel.get(i).copied().unwrap_or([0.0; D]));
+        out.push(warm.0.get(i).copied().unwrap_or(0.0));
+        out.push(warm.1.get(i).copied().unwrap_or(0.0));
     }
     out
 }
@@ -361,6 +397,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
     /// The cut of space.
     pub fn tree(&self) -> &RcbTree<D> {
         &self.ctx.tree
+    }
+
+    /// The preconditioner of the distributed Poisson CG (default: [`DdPreconditioner`]'s)
+    /// and its coarse aggregates' target size (collective in effect: every rank must set the
+    /// same before the next step).
+    pub fn set_preconditioner(&mut self, pre: DdPreconditioner, aggregate_size: usize) {
+        let mut p = self.ctx.poisson.lock().expect("distributed solver lock");
+        p.preconditioner = pre;
+        p.aggregate_size = aggregate_size;
     }
 
     /// What the decomposition did so far on this rank.

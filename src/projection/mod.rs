@@ -578,6 +578,22 @@ impl<const D: usize> ProjectionStep<D> {
         self.viscous_info
     }
 
+    /// The warm start's history: the last increment `φⁿ` (`phi`), the one before (`φⁿ⁻¹`,
+    /// empty before the second step) and the last step's `Δt` (0 before the first).
+    pub fn warm_start(&self) -> (&[f64], &[f64], f64) {
+        (&self.phi, &self.phi_prev, self.dt_prev)
+    }
+
+    /// Sets the warm start's history (see [`Self::warm_start`]): the particle decomposition
+    /// hands it to a rank's rebuilt local simulation with the particles. Both vectors are
+    /// indexed like the particles; the next step extrapolates from them when both cover every
+    /// particle.
+    pub fn set_warm_start(&mut self, phi: Vec<f64>, phi_prev: Vec<f64>, dt_prev: f64) {
+        self.phi = phi;
+        self.phi_prev = phi_prev;
+        self.dt_prev = dt_prev;
+    }
+
     /// Sets the pressure of every particle and the held increment `φ` to zero: after a one-off
     /// [`project`](Self::project) of a field that did not come from a predictor, so that the next
     /// incremental [`predict`](Self::predict) does not re-apply its pressure (of order `ρ/Δt`).
