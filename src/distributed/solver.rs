@@ -435,11 +435,12 @@ impl<C: Comm> DistributedPoisson<C> {
         let all = self.comm.all_gather(&[parts as f64]);
         let first: usize = all[..self.comm.rank()].iter().map(|v| v[0] as usize).sum();
         let nc: usize = all.iter().map(|v| v[0] as usize).sum();
-        let pts: Vec<f64> = self
+        let mut pts: Vec<f64> = self
             .own_local
             .iter()
             .flat_map(|&u| sys.positions[u as usize * d..(u as usize + 1) * d].to_vec())
             .collect();
+        unwrap_periodic(&mut pts, d, sys.periods);
         let mut aggf = vec![0.0; m + self.rows.halo.len()];
         if m > 0 {
             for (k, part) in rcb(&pts, d, parts).into_iter().enumerate() {
@@ -880,4 +881,46 @@ fn project_means(v: &mut [f64], comps: &[(Vec<usize>, f64)], sums: &[f64]) {
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Shifts the periodic coordinates of `pts` (`d` numbers each) by whole periods to within
+/// half a period of their circular mean, so that a set that straddles the periodic boundary
+/// (a rank's moving particles, some just wrapped to the far side) is one compact set for
+/// the RCB of the coarse aggregates. `periods[a] = 0`: axis `a` is not periodic.
+fn unwrap_periodic(pts: &mut [f64], d: usize, periods: &[f64]) {
+    for (a, &len) in periods.iter().enumerate().take(d) {
+        if !(len > 0.0) || pts.is_empty() {
+            continue;
+        }
+        let (s, c) = pts.chunks_exact(d).fold((0.0, 0.0), |(s, c), p| {
+            let t = std::f64::consts::TAU * p[a] / len;
+            (s + t.sin(), c + t.cos())
+        });
+        let centre = s.atan2(c) / std::f64::consts::TAU * len;
+        for p in pts.chunks_exact_mut(d) {
+            p[a] -= len * ((p[a] - centre) / len).round();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unwrap_periodic;
+
+    #[test]
+    fn a_set_across_the_periodic_boundary_is_unwrapped_into_one_compact_set() {
+        // x periodic with period 1, y not: points near x = 0 and x = 1 (one set, wrapped)
+        let mut pts = vec![0.02, 0.5, 0.97, 0.4, 0.05, 0.6, 0.99, 0.1];
+        unwrap_periodic(&mut pts, 2, &[1.0, 0.0]);
+        let xs: Vec<f64> = pts.chunks(2).map(|p| p[0]).collect();
+        let (lo, hi) = xs
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &x| (l.min(x), h.max(x)));
+        assert!(hi - lo < 0.1, "compact after unwrapping: {xs:?}");
+        // whole periods only, and y untouched
+        for (p, q) in pts.chunks(2).zip([0.02, 0.97, 0.05, 0.99]) {
+            assert!(((p[0] - q) - (p[0] - q).round()).abs() < 1e-12);
+        }
+        assert_eq!([pts[1], pts[3], pts[5], pts[7]], [0.5, 0.4, 0.6, 0.1]);
+    }
 }

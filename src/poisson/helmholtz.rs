@@ -255,6 +255,7 @@ impl HelmholtzSolver {
                     dim: D,
                     params,
                     weights: &weights,
+                    periods: &nl.config().periodic.len,
                 })?;
                 info.iters += ri.iters;
                 info.abs_residual = info.abs_residual.max(ri.abs_residual);

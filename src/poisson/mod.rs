@@ -280,6 +280,10 @@ pub struct ExternalSystem<'a> {
     pub params: &'a SolveParams,
     /// Volume `ω` of each unknown's particle (the weights of the floating components' means).
     pub weights: &'a [f64],
+    /// Period of each axis (`dim` numbers; `0`: not periodic). A solver that groups unknowns
+    /// by position (coarse aggregates) must unwrap periodic coordinates: a set of moving
+    /// particles can straddle the periodic boundary.
+    pub periods: &'a [f64],
 }
 
 /// A solver that replaces the built-in ones for the Poisson system (the domain-decomposed CG
@@ -586,6 +590,7 @@ impl PoissonSolver {
                 dim: D,
                 params,
                 weights: &weights,
+                periods: &nl.config().periodic.len,
             })?;
             info.solve_seconds = t.elapsed().as_secs_f64();
             info.iters = r.iters;
