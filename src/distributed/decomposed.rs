@@ -24,8 +24,13 @@
 //! simulation built anew on its particles. The trapezoidal pressure term's gradient at the old
 //! positions is taken when the next step starts, from the owners' pressures.
 //!
-//! Limits: no Dirichlet band (free surface); the setup reads the whole scene on every rank
-//! (each keeps its share); the diagnostics in the step's report are the rank's own (the global
+//! **A free surface** (the Dirichlet band of a detected surface): each rank detects it on its
+//! particles every step (own ones right: their neighbourhoods are whole), the band travels
+//! with the particles' records, and where the projection extends the water's velocity into
+//! the band it first takes the halo's `u*` and corrected velocity from their owners
+//! ([`HaloSync`]); the step's surface and splash counts are summed over the own particles.
+//!
+//! Limits: the setup reads the whole scene on every rank (each keeps its share); the diagnostics in the step's report are the rank's own (the global
 //! ones: [`DecomposedRun::global_diagnostics`]); the local simulation of a moving run is
 //! rebuilt every step (neighbour search included), where the single-process run keeps its
 //! candidates while the particles stay within the skin.
@@ -38,7 +43,10 @@ use super::solver::{DdPreconditioner, DistributedPoisson};
 use crate::boundary::Boundary;
 use crate::diagnostics::connectivity;
 use crate::error::{Error, InputError, StabilityError};
-use crate::flow::{CarriedState, FlowParams, FlowReport, Motion, Simulation, StabilityGuard};
+use crate::flow::{
+    CarriedState, FlowParams, FlowReport, FreeSurface, Motion, Simulation, StabilityGuard,
+    SurfaceCount,
+};
 use crate::neighbors::NeighborConfig;
 use crate::particles::{Particles, Role};
 use crate::projection::HaloSync;
@@ -62,11 +70,12 @@ pub const HALO_LAYERS_FIXED: f64 = 2.0;
 pub const HALO_LAYERS_MOVING: f64 = 3.0;
 
 /// The numbers carried with a particle when it migrates or is copied into a halo, besides
-/// its position: global id, velocity, pressure, volume, material acceleration, and the
-/// Poisson warm start's last two increments `φⁿ`, `φⁿ⁻¹`. (The pressure gradient of the
+/// its position: global id, velocity, pressure, volume, material acceleration, the Poisson
+/// warm start's last two increments `φⁿ`, `φⁿ⁻¹`, and whether it is in the Dirichlet band (a
+/// free surface's particles shift only along the surface). (The pressure gradient of the
 /// trapezoidal term is taken when the next step starts, from these.)
 const fn record_width(d: usize) -> usize {
-    5 + 2 * d
+    6 + 2 * d
 }
 
 /// A rank's part of a decomposed simulation.
@@ -96,6 +105,7 @@ struct Context<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> {
     boundary: B,
     config: NeighborConfig<D>,
     params: FlowParams<D>,
+    free_surface: Option<FreeSurface>,
     /// Whether the global Poisson problem has the constants as null space.
     floating: bool,
     /// Depth of the particle halo (distance from the rank's box).
@@ -129,16 +139,19 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
     /// neighbour settings and parameters, and the distributed solvers installed. Fixed
     /// particles (Eulerian) and moving ones (Lagrangian: after every step the particles
     /// migrate to the rank whose box holds them, with their carried state, the cut is
-    /// re-balanced when needed, and the halo and local simulation are built again). Fails for
-    /// a Dirichlet band (not supported yet).
+    /// re-balanced when needed, and the halo and local simulation are built again). A free
+    /// surface (the Dirichlet band) is detected by each rank on its particles; a Dirichlet
+    /// band without a free-surface detection is refused.
     pub fn new(comm: C, global: &Simulation<D, B>) -> Result<Self, Error> {
         let (p, me) = (comm.size(), comm.rank());
         let gp = &global.particles;
-        if gp.role.contains(&Role::Dirichlet) {
+        let free_surface = global.free_surface();
+        if gp.role.contains(&Role::Dirichlet) && free_surface.is_none() {
             return Err(InputError::parameter(
                 "role",
                 0.0,
-                "the particle decomposition does not run a Dirichlet band yet",
+                "the particle decomposition runs a Dirichlet band only as a detected free \
+                 surface",
             )
             .into());
         }
@@ -149,7 +162,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         } else {
             HALO_LAYERS_FIXED
         };
-        let fluid: Vec<usize> = (0..gp.len()).filter(|&i| gp.role[i].is_fluid()).collect();
+        let fluid: Vec<usize> = (0..gp.len()).filter(|&i| gp.role[i].is_real()).collect();
         let share: Vec<usize> = fluid.iter().copied().filter(|i| i % p == me).collect();
         let x: Vec<[f64; D]> = share.iter().map(|&i| gp.x[i]).collect();
         let tree = RcbTree::balance(&comm, &x);
@@ -162,7 +175,8 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             share.iter().map(|&i| (i, i as u32)),
         );
         let comps = connectivity(&global.nl, &gp.role);
-        let floating = !comps.floating().is_empty();
+        // a free surface anchors the pressure (its band is detected every step)
+        let floating = free_surface.is_none() && !comps.floating().is_empty();
         let new_solver = |pre: Option<DdPreconditioner>| {
             let mut s = DistributedPoisson::new(comm.clone());
             if let Some(pre) = pre {
@@ -179,6 +193,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             boundary: global.boundary.clone(),
             config,
             params: global.params,
+            free_surface,
             floating,
             reach: layers * (config.h + config.skin),
             counts: DecompositionCounts::default(),
@@ -286,7 +301,12 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
             let xi: [f64; D] = std::array::from_fn(|a| rec[a]);
             let r = &rec[D..];
             let u: [f64; D] = std::array::from_fn(|a| r[1 + a]);
-            local.push(xi, u, r[1 + D], r[2 + D], Role::Fluid);
+            let role = if r[5 + 2 * D] != 0.0 {
+                Role::Dirichlet
+            } else {
+                Role::Fluid
+            };
+            local.push(xi, u, r[1 + D], r[2 + D], role);
             gid.push(r[0] as u32);
             phi.push(r[3 + 2 * D]);
             phi_prev.push(r[4 + 2 * D]);
@@ -296,10 +316,17 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
                     .push(std::array::from_fn(|a| r[3 + D + a]));
             }
         }
-        let vol = local.vol.clone();
+        let (vol, role, pressure) = (local.vol.clone(), local.role.clone(), local.p.clone());
         let mut sim = Simulation::new(local, self.boundary.clone(), self.config, self.params)?;
-        // the owners' volumes: a halo particle's neighbourhood is cut at the halo's edge
-        sim.particles.vol[..vol.len()].copy_from_slice(&vol);
+        if let Some(fs) = self.free_surface {
+            sim = sim.with_free_surface(fs)?;
+        }
+        // the owners' volumes, band and pressures: a halo particle's neighbourhood is cut at
+        // the halo's edge (and the detection at construction resets the band's pressure)
+        let n_real = vol.len();
+        sim.particles.vol[..n_real].copy_from_slice(&vol);
+        sim.particles.role[..n_real].copy_from_slice(&role);
+        sim.particles.p[..n_real].copy_from_slice(&pressure);
         sim.boundary.place_ghosts(&mut sim.particles);
         sim.set_carried_state(carried)?;
         if let Some((dt_prev, before)) = warm {
@@ -352,9 +379,10 @@ struct Sync<C: Comm> {
 }
 
 impl<C: Comm> HaloSync for Sync<C> {
-    fn scalar(&mut self, values: &mut [f64]) {
-        let got = self.halo.exchange(&self.comm, &values[..self.n_own], 1);
-        values[self.n_own..self.n_own + got.len()].copy_from_slice(&got);
+    fn sync(&mut self, values: &mut [f64], width: usize) {
+        let (own, halo) = (self.n_own * width, self.halo.n_halo() * width);
+        let got = self.halo.exchange(&self.comm, &values[..own], width);
+        values[own..own + halo].copy_from_slice(&got);
     }
 }
 
@@ -374,6 +402,7 @@ fn pack<const D: usize>(
         out.extend_from_slice(&carried.material_accel.get(i).copied().unwrap_or([0.0; D]));
         out.push(warm.0.get(i).copied().unwrap_or(0.0));
         out.push(warm.1.get(i).copied().unwrap_or(0.0));
+        out.push((p.role[i] == Role::Dirichlet) as u8 as f64);
     }
     out
 }
@@ -465,9 +494,34 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         // every rank takes part in the global check, also one whose step failed
         let checked = self.check_guard(&guard, report.as_ref().ok(), dt);
         self.moved = self.sim.params.motion != Motion::Eulerian;
-        let report = report?;
+        let mut report = report?;
         checked?;
+        if report.surface.is_some() {
+            report.surface = Some(self.surface_count());
+        }
         Ok(report)
+    }
+
+    /// The free surface's particles and splashes over every rank's own particles (the local
+    /// detection also flags the halo's outer edge, whose neighbourhoods are cut).
+    fn surface_count(&self) -> SurfaceCount {
+        let (p, nl) = (&self.sim.particles, &self.sim.nl);
+        let band = |i: &usize| p.role[*i] == Role::Dirichlet;
+        let surface = (0..self.n_own).filter(band).count();
+        let splash = (0..self.n_own)
+            .filter(band)
+            .filter(|&i| {
+                !nl.row(i).any(|k| {
+                    nl.w()[k] > 0.0
+                        && crate::diagnostics::alias(&p.role, nl.indices()[k] as usize).is_some()
+                })
+            })
+            .count();
+        let s = self.ctx.comm.sum(&[surface as f64, splash as f64]);
+        SurfaceCount {
+            surface: s[0] as usize,
+            splash: s[1] as usize,
+        }
     }
 
     /// The guard of the scene over the own particles of every rank (collective): energy

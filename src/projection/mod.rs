@@ -509,9 +509,23 @@ pub struct ProjectionCapture<const D: usize> {
 /// the global solves do not write). Collective: every rank's projection calls it at the same
 /// point of the step.
 pub trait HaloSync: Send + Sync + std::fmt::Debug {
-    /// Overwrites the entries of `values` (one per particle) at the copies with their owners'
-    /// values; the other entries are left as they are.
-    fn scalar(&mut self, values: &mut [f64]);
+    /// Overwrites the entries of `values` (`width` numbers per particle) at the copies with
+    /// their owners' values; the other entries are left as they are.
+    fn sync(&mut self, values: &mut [f64], width: usize);
+
+    /// [`Self::sync`] for one number per particle.
+    fn scalar(&mut self, values: &mut [f64]) {
+        self.sync(values, 1);
+    }
+}
+
+/// [`HaloSync::sync`] for a vector per particle.
+fn sync_vector<const D: usize>(h: &mut dyn HaloSync, values: &mut [[f64; D]]) {
+    let mut flat: Vec<f64> = values.iter().flatten().copied().collect();
+    h.sync(&mut flat, D);
+    for (v, f) in values.iter_mut().zip(flat.chunks_exact(D)) {
+        v.copy_from_slice(f);
+    }
 }
 
 /// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
@@ -1064,6 +1078,10 @@ impl<const D: usize> ProjectionStep<D> {
                 boundary.fill_vector(&particles.role, u_star, VectorKind::Velocity);
             }
             stages::extend_to_band(nl, &particles.role, u_star);
+            // a copy's extension reads u* beyond the global solves: its owner's
+            if let Some(h) = self.halo.as_mut() {
+                sync_vector(h.as_mut(), u_star);
+            }
         }
         Ok(Prediction {
             seconds: t.elapsed().as_secs_f64(),
@@ -1293,6 +1311,10 @@ impl<const D: usize> ProjectionStep<D> {
             boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
         }
         if params.free_surface {
+            // a copy's corrected velocity reads φ beyond the global solve: its owner's
+            if let Some(h) = self.halo.as_mut() {
+                sync_vector(h.as_mut(), &mut self.u_new);
+            }
             stages::extend_to_band(nl, role, &mut self.u_new);
             if ghosts {
                 boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
