@@ -225,6 +225,15 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
     let all = comm.all_gather(&mine);
     let counts = run.counts();
     let migrated = comm.sum(&[counts.migrated as f64, counts.rebalances as f64]);
+    // the particle decomposition's own traffic (besides the solves'): halo copies received
+    // and particles migrated, per rank and step
+    let per_step = |v: u64| v as f64 / a.steps as f64;
+    let particle_traffic = comm.all_gather(&[
+        run.n_halo() as f64,
+        per_step(counts.halo_received),
+        per_step(counts.migrated),
+        (per_step(counts.halo_received) + per_step(counts.migrated)) * run.particle_bytes() as f64,
+    ]);
     let Some((sreps, su, sx, fluid)) = serial else {
         return Ok(true);
     };
@@ -247,7 +256,11 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
         serde_json::json!({
             "scene": name, "ranks": comm.size(), "steps": a.steps, "decomposed": true,
             "motion": format!("{:?}", a.motion), "max_velocity_difference": diff,
-            "max_position_difference": dx, "migrations": migrated[0], "rebalances": migrated[1], "particles_compared": seen, "fluid_particles": fluid,
+            "max_position_difference": dx, "migrations": migrated[0], "rebalances": migrated[1],
+            "particle_traffic_per_rank": particle_traffic.iter().map(|v| serde_json::json!({
+                "halo_particles": v[0], "halo_received_per_step": v[1],
+                "migrated_per_step": v[2], "particle_bytes_per_step": v[3],
+            })).collect::<Vec<_>>(), "particles_compared": seen, "fluid_particles": fluid,
             "connectivity_equal_and_c0_to_1e-12": same_diagnostics,
             "own_particles_per_rank": owned, "distributed_seconds": seconds,
             "mean_iterations": iters.iter().sum::<usize>() as f64 / iters.len().max(1) as f64,

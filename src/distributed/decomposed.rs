@@ -437,6 +437,11 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         p.aggregate_size = aggregate_size;
     }
 
+    /// Bytes of one particle's message (position and record) in a migration or halo exchange.
+    pub fn particle_bytes(&self) -> usize {
+        8 * (D + record_width(D))
+    }
+
     /// What the decomposition did so far on this rank.
     pub fn counts(&self) -> DecompositionCounts {
         self.ctx.counts

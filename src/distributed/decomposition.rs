@@ -185,7 +185,9 @@ impl<const D: usize> RcbTree<D> {
     }
 }
 
-/// Distance from `x` to the box `(lo, hi)`, the nearest periodic image of `x` counted.
+/// Distance from `x` to the box `(lo, hi)`, the nearest periodic image of `x` counted. On a
+/// periodic axis the box is first clipped to the periodic cell (a tree's outer boxes are
+/// unbounded: unclipped, every image of every particle would lie in them).
 pub fn distance_to_box<const D: usize>(
     x: &[f64; D],
     b: &([f64; D], [f64; D]),
@@ -193,9 +195,15 @@ pub fn distance_to_box<const D: usize>(
 ) -> f64 {
     let mut s = 0.0;
     for a in 0..D {
-        let gap = |v: f64| (b.0[a] - v).max(v - b.1[a]).max(0.0);
-        let mut g = gap(x[a]);
         let len = periodic.len[a];
+        let (lo, hi) = if len > 0.0 {
+            let cell = periodic.lo[a];
+            (b.0[a].max(cell), b.1[a].min(cell + len))
+        } else {
+            (b.0[a], b.1[a])
+        };
+        let gap = |v: f64| (lo - v).max(v - hi).max(0.0);
+        let mut g = gap(x[a]);
         if len > 0.0 {
             g = g.min(gap(x[a] - len)).min(gap(x[a] + len));
         }
@@ -332,6 +340,24 @@ impl ParticleHalo {
 mod tests {
     use super::*;
     use crate::distributed::ThreadComm;
+
+    #[test]
+    fn an_unbounded_box_in_a_periodic_cell_is_clipped_to_the_cell() {
+        // the lower-left box of a 2 x 2 cut of the unit periodic cell, unbounded below
+        let b = ([f64::NEG_INFINITY; 2], [0.5, 0.5]);
+        let per = Periodicity {
+            lo: [0.0; 2],
+            len: [1.0; 2],
+        };
+        // the middle of the far box is 0.25 away on each axis (through the nearest image)
+        let d = distance_to_box(&[0.75, 0.75], &b, &per);
+        assert!((d - 0.25 * 2f64.sqrt()).abs() < 1e-12, "{d}");
+        // near the cell's edge: close through the image across x = 1
+        let d = distance_to_box(&[0.95, 0.25], &b, &per);
+        assert!((d - 0.05).abs() < 1e-12, "{d}");
+        // not periodic: the unbounded box holds everything below its corner
+        assert_eq!(distance_to_box(&[-3.0, 0.2], &b, &Periodicity::none()), 0.0);
+    }
 
     /// A deterministic cloud: `n` points in the unit square, dealt to the ranks round-robin
     /// (not by position: the decomposition must not depend on where they start).
