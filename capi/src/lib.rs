@@ -280,6 +280,9 @@ impl From<Error> for Fail {
                 },
                 None,
             ),
+            // a decomposed run's step failed on another rank: not reachable through the C
+            // ABI (one process), classed with the solve
+            Error::PeerFailed { .. } => (GpmStatus::Solve, None, None),
         };
         Fail {
             status,

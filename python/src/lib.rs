@@ -98,6 +98,9 @@ fn build_exception(py: Python<'_>, e: &Error) -> PyResult<PyErr> {
             };
             ("PairWeightError", particle, None)
         }
+        // a decomposed run's step failed on another rank: not reachable from Python (one
+        // process), classed with the solve
+        Error::PeerFailed { .. } => ("SolveError", None, None),
     };
     let mut message = e.to_string();
     if let Error::Input(InputError::StaleNeighbors { .. }) = e {
