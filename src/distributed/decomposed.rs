@@ -37,7 +37,7 @@
 
 use super::comm::Comm;
 use super::decomposition::{migrate, ParticleHalo, RcbTree};
-use super::diagnostics::{global_diagnostics, GlobalDiagnostics};
+use super::diagnostics::{step_diagnostics, GlobalDiagnostics};
 use super::driver::Shared;
 use super::solver::{DdPreconditioner, DistributedPoisson};
 use crate::boundary::Boundary;
@@ -636,23 +636,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
     /// the halo, `c0` over every rank's own rows, the norms and the Theorem 4.5 ratio by sums
     /// (`dt` the step's `Δt`).
     pub fn global_diagnostics(&mut self, dt: f64) -> GlobalDiagnostics {
-        let sim = &self.sim;
-        let scale = -sim.params.projection.rho / dt;
-        let f: Vec<[f64; D]> = sim
-            .projection
-            .u_star()
-            .iter()
-            .map(|u| u.map(|c| scale * c))
-            .collect();
         let mut dd = self.ctx.poisson.lock().expect("distributed solver lock");
-        global_diagnostics(
-            &mut dd,
-            &sim.projection.solver.assembly,
-            &sim.nl,
-            &sim.particles.role,
-            &sim.particles.vol,
-            &sim.projection.phi,
-            &f,
-        )
+        step_diagnostics(&mut dd, &self.sim, dt)
     }
 }

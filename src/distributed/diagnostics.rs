@@ -36,6 +36,31 @@ pub struct GlobalDiagnostics {
     pub rounds: usize,
 }
 
+/// [`global_diagnostics`] of the step `sim` just took (`dt` its `Δt`): its assembly,
+/// neighbours, roles, volumes and increment, and the source field `−(ρ/Δt) u*`.
+pub fn step_diagnostics<C: Comm, const D: usize, B: crate::boundary::Boundary<D>>(
+    dd: &mut DistributedPoisson<C>,
+    sim: &crate::flow::Simulation<D, B>,
+    dt: f64,
+) -> GlobalDiagnostics {
+    let scale = -sim.params.projection.rho / dt;
+    let f: Vec<[f64; D]> = sim
+        .projection
+        .u_star()
+        .iter()
+        .map(|u| u.map(|c| scale * c))
+        .collect();
+    global_diagnostics(
+        dd,
+        &sim.projection.solver.assembly,
+        &sim.nl,
+        &sim.particles.role,
+        &sim.particles.vol,
+        &sim.projection.phi,
+        &f,
+    )
+}
+
 /// The diagnostics of the configuration the last solve of `dd` saw (`a` its assembly), from
 /// the ranks' own rows: `phi` the increment at every particle, `f` the Poisson source field
 /// `−(ρ/Δt) u*`.

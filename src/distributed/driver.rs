@@ -3,7 +3,7 @@
 //! them against the step's own report.
 
 use super::comm::Comm;
-use super::diagnostics::{global_diagnostics, GlobalDiagnostics};
+use super::diagnostics::{step_diagnostics, GlobalDiagnostics};
 use super::solver::{DistributedPoisson, Traffic};
 use crate::boundary::Boundary;
 use crate::error::SolveError;
@@ -99,23 +99,7 @@ impl<C: Comm + 'static> DistributedRun<C> {
     ) -> Result<GlobalDiagnostics, DistributedError> {
         let dt = rep.time - self.time;
         self.time = rep.time;
-        let scale = -sim.params.projection.rho / dt;
-        let f: Vec<[f64; D]> = sim
-            .projection
-            .u_star()
-            .iter()
-            .map(|u| u.map(|c| scale * c))
-            .collect();
-        let mut s = self.solver();
-        let g = global_diagnostics(
-            &mut s,
-            &sim.projection.solver.assembly,
-            &sim.nl,
-            &sim.particles.role,
-            &sim.particles.vol,
-            &sim.projection.phi,
-            &f,
-        );
+        let g = step_diagnostics(&mut self.solver(), sim, dt);
         let pr = &rep.projection;
         let mismatch = |quantity, global: f64, local: f64| DistributedError::Mismatch {
             step: rep.step,
