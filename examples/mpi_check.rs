@@ -98,20 +98,26 @@ fn steps<B: Boundary<2>>(
         .collect()
 }
 
+/// The single-process run on rank 0 (its reports and final state), `None` on the others.
+fn serial_run<B: Boundary<2>>(
+    build: &impl Fn() -> gpm::Result<Simulation<2, B>>,
+    a: &Args,
+) -> Result<Option<(Vec<FlowReport>, Simulation<2, B>)>> {
+    if MpiComm.rank() != 0 {
+        return Ok(None);
+    }
+    let mut sim = build()?;
+    let reps = steps(&mut sim, a.steps, |_, _| Ok(()))?;
+    Ok(Some((reps, sim)))
+}
+
 fn compare<B: Boundary<2>>(
     name: &str,
     build: impl Fn() -> gpm::Result<Simulation<2, B>>,
     a: &Args,
 ) -> Result<bool> {
     let comm = MpiComm;
-    let rank = comm.rank();
-    let serial = if rank == 0 {
-        let mut sim = build()?;
-        let reps = steps(&mut sim, a.steps, |_, _| Ok(()))?;
-        Some((reps, sim.particles.u.clone()))
-    } else {
-        None
-    };
+    let serial = serial_run(&build, a)?;
     let mut sim = build()?;
     let mut run = DistributedRun::new(comm);
     run.solver().preconditioner = a.preconditioner;
@@ -141,14 +147,15 @@ fn compare<B: Boundary<2>>(
         halo,
     ];
     let all = comm.all_gather(&mine);
-    let Some((sreps, su)) = serial else {
+    let Some((sreps, ssim)) = serial else {
         return Ok(true);
     };
+    let su = &ssim.particles.u;
     let diff = sim
         .particles
         .u
         .iter()
-        .zip(&su)
+        .zip(su)
         .flat_map(|(a, b)| [(a[0] - b[0]).abs(), (a[1] - b[1]).abs()])
         .fold(0.0f64, f64::max);
     let same_diagnostics = reps.iter().zip(&sreps).all(|(d, s)| {
@@ -188,20 +195,7 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
 ) -> Result<bool> {
     use gpm::distributed::decomposed::DecomposedRun;
     let comm = MpiComm;
-    let rank = comm.rank();
-    let serial = if rank == 0 {
-        let mut sim = build()?;
-        let reps = steps(&mut sim, a.steps, |_, _| Ok(()))?;
-        let fluid = sim.particles.role.iter().filter(|r| r.is_fluid()).count();
-        Some((
-            reps,
-            sim.particles.u.clone(),
-            sim.particles.x.clone(),
-            fluid,
-        ))
-    } else {
-        None
-    };
+    let serial = serial_run(&build, a)?;
     let global = build()?;
     let started = std::time::Instant::now();
     let mut run = DecomposedRun::new(comm, &global)?;
@@ -234,9 +228,11 @@ fn compare_decomposed<B: Boundary<2> + Clone>(
         per_step(counts.migrated),
         (per_step(counts.halo_received) + per_step(counts.migrated)) * run.particle_bytes() as f64,
     ]);
-    let Some((sreps, su, sx, fluid)) = serial else {
+    let Some((sreps, ssim)) = serial else {
         return Ok(true);
     };
+    let (su, sx) = (&ssim.particles.u, &ssim.particles.x);
+    let fluid = ssim.particles.role.iter().filter(|r| r.is_fluid()).count();
     let mut seen = 0usize;
     let (mut diff, mut dx) = (0.0f64, 0.0f64);
     for rec in all.iter().flat_map(|v| v.chunks_exact(5)) {
