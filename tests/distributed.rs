@@ -404,3 +404,202 @@ fn decomposed_moving_particles_step_like_the_whole() {
         "{four} iterations on 4 ranks, {one} on 1"
     );
 }
+
+/// `gpm run` under `mpirun` for every scene: the scene run through [`Decomposed`] (its
+/// particles cut over thread ranks, rank 0's copy gathered after every step) reports what the
+/// single-process run reports — every number of its summary, the final particles, and every
+/// step's diagnostics.
+struct CompareDecomposed {
+    ranks: usize,
+    steps: u64,
+    motion: Option<Motion>,
+}
+
+/// Numbers of two summaries: equal to `tol` relative (wall-clock fields skipped).
+fn same_numbers(a: &serde_json::Value, b: &serde_json::Value, path: &str, tol: f64) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            assert_eq!(x.len(), y.len(), "{path}: keys");
+            for (k, v) in x {
+                if k.contains("seconds") {
+                    continue;
+                }
+                same_numbers(v, &y[k], &format!("{path}.{k}"), tol);
+            }
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            assert_eq!(x.len(), y.len(), "{path}: length");
+            for (i, (v, w)) in x.iter().zip(y).enumerate() {
+                same_numbers(v, w, &format!("{path}[{i}]"), tol);
+            }
+        }
+        (Value::Number(x), Value::Number(y)) => {
+            let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+            assert!(
+                (x - y).abs() <= tol * x.abs().max(y.abs()).max(1e-6),
+                "{path}: {x} vs {y}"
+            );
+        }
+        _ => assert_eq!(a, b, "{path}"),
+    }
+}
+
+impl gpm::scene::SceneVisitor for CompareDecomposed {
+    type Output = ();
+    fn visit<const D: usize, S: gpm::scene::Scene<D>>(self) {
+        use gpm::scene::ranks::Decomposed;
+        use gpm::scene::{run_scene, run_scene_with, SceneConfig};
+        use std::ops::ControlFlow;
+        let cfg = SceneConfig::<S>::default().with(|c| {
+            c.n = if D == 2 { 16 } else { 8 };
+            if let Some(m) = self.motion {
+                c.motion = m;
+            }
+        });
+        let steps = self.steps;
+        let tight = |sim: &mut Simulation<D, S::Boundary>| {
+            sim.params.projection.solve.rel_tol = 1e-12;
+        };
+        let mut serial_reports = Vec::new();
+        let serial = run_scene(&cfg, tight, |rep, _| {
+            serial_reports.push(*rep);
+            Ok(if rep.step >= steps {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        })
+        .unwrap_or_else(|e| panic!("{}: serial run: {e}", S::NAME));
+        // (the configuration travels to the rank threads as text: a scene type need not be Sync)
+        let text = serde_json::to_string(&cfg).unwrap();
+        let out = ThreadComm::run(self.ranks, |comm| {
+            let cfg: SceneConfig<S> = gpm::scene::scene_config_from_json(&text).unwrap();
+            let mut stepper = Decomposed::new(comm, 0);
+            let root = stepper.is_root();
+            let mut reports = Vec::new();
+            let run = run_scene_with(&cfg, &mut stepper, tight, |rep, _| {
+                reports.push(*rep);
+                Ok(if rep.step >= steps {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                })
+            })
+            .unwrap_or_else(|e| panic!("{}: decomposed run: {e}", S::NAME));
+            root.then(|| {
+                let summary = serde_json::to_value(run.summary(&cfg)).unwrap();
+                let p = &run.sim.particles;
+                let real: Vec<_> = (0..p.len())
+                    .filter(|&i| p.role[i].is_real())
+                    .map(|i| (p.x[i], p.u[i], p.p[i]))
+                    .collect();
+                (summary, real, reports, run.end)
+            })
+        });
+        let (summary, real, reports, end) = out.into_iter().flatten().next().unwrap();
+        let name = S::NAME;
+        assert_eq!(end, serial.end, "{name}: end");
+        assert_eq!(reports.len(), serial_reports.len(), "{name}: steps");
+        for (r, s) in reports.iter().zip(&serial_reports) {
+            let k = r.step;
+            let (a, b) = (&r.projection, &s.projection);
+            assert_eq!(a.connectivity, b.connectivity, "{name} step {k}");
+            assert_eq!(a.disconnected, b.disconnected, "{name} step {k}");
+            assert_eq!(r.dt_limit, s.dt_limit, "{name} step {k}");
+            assert_eq!(r.surface, s.surface, "{name} step {k}");
+            assert_eq!(r.wall_pushes, s.wall_pushes, "{name} step {k}");
+            let close = |what: &str, x: f64, y: f64, tol: f64| {
+                assert!(
+                    (x - y).abs() <= tol * x.abs().max(y.abs()).max(1e-300),
+                    "{name} step {k}: {what} {x:e} vs {y:e}"
+                );
+            };
+            close("dt", a.dt, b.dt, 1e-12);
+            assert!(
+                (r.max_shift - s.max_shift).abs() <= 1e-9 * s.max_shift.max(1e-3),
+                "{name} step {k}: shift {:e} vs {:e}",
+                r.max_shift,
+                s.max_shift
+            );
+            let growth = |g: Option<f64>| g.unwrap_or(-1.0);
+            close(
+                "energy growth",
+                growth(r.energy_growth),
+                growth(s.energy_growth),
+                1e-9,
+            );
+            close("c0", a.c0, b.c0, 1e-12);
+            close("min spacing", a.min_spacing, b.min_spacing, 1e-9);
+            close("kinetic energy", a.kinetic_energy, b.kinetic_energy, 1e-9);
+            close("max speed", a.max_speed, b.max_speed, 1e-9);
+            // (a divergence at round-off, 1e-16, is compared with an absolute floor)
+            assert!(
+                (a.div_before - b.div_before).abs() <= 1e-6 * b.div_before + 1e-12,
+                "{name} step {k}: div before {:e} vs {:e}",
+                a.div_before,
+                b.div_before
+            );
+            // after the projection the divergence is the solver's residual: compared with
+            // the size of the step's divergence before
+            assert!(
+                (a.div_after - b.div_after).abs() <= 1e-6 * b.div_before + 1e-12,
+                "{name} step {k}: div after {:e} vs {:e}",
+                a.div_after,
+                b.div_after
+            );
+            // (the ratio of a flow without divergence is round-off: an absolute floor)
+            assert!(
+                (a.stability_ratio - b.stability_ratio).abs() <= 1e-6 * b.stability_ratio + 1e-12,
+                "{name} step {k}: Theorem 4.5 ratio {:e} vs {:e}",
+                a.stability_ratio,
+                b.stability_ratio
+            );
+        }
+        let s = &serial.sim.particles;
+        let sreal: Vec<usize> = (0..s.len()).filter(|&i| s.role[i].is_real()).collect();
+        assert_eq!(real.len(), sreal.len(), "{name}: real particles");
+        let (mut dx, mut du) = (0.0f64, 0.0f64);
+        for ((x, u, _), &i) in real.iter().zip(&sreal) {
+            for a in 0..D {
+                dx = dx.max((x[a] - s.x[i][a]).abs());
+                du = du.max((u[a] - s.u[i][a]).abs());
+            }
+        }
+        eprintln!(
+            "{name} ({:?}) on {} ranks, {} steps: position difference {dx:e}, velocity {du:e}",
+            cfg.motion,
+            self.ranks,
+            reports.len()
+        );
+        assert!(dx <= 1e-9 && du <= 1e-9, "{name}: {dx:e} {du:e}");
+        let expected = serde_json::to_value(serial.summary(&cfg)).unwrap();
+        same_numbers(&summary, &expected, name, 1e-7);
+    }
+}
+
+#[test]
+fn every_scene_runs_decomposed_like_one_process() {
+    for &name in gpm::scene::SCENES {
+        gpm::scene::visit_scene(
+            name,
+            CompareDecomposed {
+                ranks: std::env::var("GPM_RANKS").map_or(3, |v| v.parse().unwrap()),
+                steps: 8,
+                motion: None,
+            },
+        )
+        .unwrap();
+    }
+    for name in ["cavity", "taylor_green", "channel"] {
+        gpm::scene::visit_scene(
+            name,
+            CompareDecomposed {
+                ranks: 2,
+                steps: 8,
+                motion: Some(Motion::Lagrangian),
+            },
+        )
+        .unwrap();
+    }
+}

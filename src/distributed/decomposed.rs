@@ -39,10 +39,10 @@ use super::comm::Comm;
 use super::decomposition::{migrate, ParticleHalo, RcbTree};
 use super::diagnostics::{step_diagnostics, GlobalDiagnostics};
 use super::driver::Shared;
-use super::solver::{DdPreconditioner, DistributedPoisson};
+use super::solver::{DdPreconditioner, DistributedPoisson, Traffic};
 use crate::boundary::Boundary;
 use crate::diagnostics::connectivity;
-use crate::error::{Error, InputError, StabilityError};
+use crate::error::{DtLimit, Error, InputError, StabilityError};
 use crate::flow::{
     CarriedState, FlowParams, FlowReport, FreeSurface, Motion, Simulation, StabilityGuard,
     SurfaceCount,
@@ -77,6 +77,15 @@ pub const HALO_LAYERS_MOVING: f64 = 3.0;
 const fn record_width(d: usize) -> usize {
     6 + 2 * d
 }
+
+/// The limits that set `Δt`, by the code the ranks exchange.
+const LIMITS: [DtLimit; 5] = [
+    DtLimit::Cfl,
+    DtLimit::Viscous,
+    DtLimit::Force,
+    DtLimit::Max,
+    DtLimit::Fixed,
+];
 
 /// A rank's part of a decomposed simulation.
 pub struct DecomposedRun<C: Comm + Clone + 'static, const D: usize, B: Boundary<D>> {
@@ -131,6 +140,9 @@ pub struct DecompositionCounts {
     pub migrated: u64,
     /// Halo particles received, summed over the rebuilds.
     pub halo_received: u64,
+    /// Particles sent to (or, on the root, received by) the gathered copy
+    /// ([`DecomposedRun::gather_into`]).
+    pub gathered: u64,
 }
 
 impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> DecomposedRun<C, D, B> {
@@ -447,6 +459,32 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         self.ctx.counts
     }
 
+    /// Messages and volumes of this rank's global solves so far (the Poisson and the implicit
+    /// viscous ones, added).
+    pub fn traffic(&self) -> Traffic {
+        let a = self
+            .ctx
+            .poisson
+            .lock()
+            .expect("distributed solver lock")
+            .traffic();
+        let b = self
+            .ctx
+            .viscous
+            .lock()
+            .expect("distributed solver lock")
+            .traffic();
+        Traffic {
+            messages: a.messages + b.messages,
+            bytes: a.bytes + b.bytes,
+            reductions: a.reductions + b.reductions,
+            reduced_values: a.reduced_values + b.reduced_values,
+            gathered_bytes: a.gathered_bytes + b.gathered_bytes,
+            solves: a.solves + b.solves,
+            iterations: a.iterations + b.iterations,
+        }
+    }
+
     /// Halo particles of this rank now.
     pub fn n_halo(&self) -> usize {
         self.halo.n_halo()
@@ -456,8 +494,21 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
     /// after the last step and the local simulation is built again (halo included);
     /// fixed ones: the halo's velocity and pressure from their owners. `Δt` (and the speed
     /// of a Fickian shift with a global speed) the extreme over the ranks, then the rank's
-    /// step.
+    /// step. The report is the step's over every rank's own particles: its diagnostics
+    /// (connectivity, `c0`, minimum spacing, the divergences, the Theorem 4.5 ratio, energy,
+    /// speed, correction ratio, shifts, wall pushes, surface counts, the limit that set `Δt`)
+    /// are global and the same on every rank; its timings are this rank's.
     pub fn advance(&mut self) -> Result<FlowReport, Error> {
+        self.advance_inner(None)
+    }
+
+    /// [`Self::advance`] ending at time `t` at the latest, as
+    /// [`Simulation::advance_toward`] (the same shortened last step on every rank).
+    pub fn advance_toward(&mut self, t: f64) -> Result<FlowReport, Error> {
+        self.advance_inner(Some(t))
+    }
+
+    fn advance_inner(&mut self, until: Option<f64>) -> Result<FlowReport, Error> {
         if self.moved {
             self.redistribute()?;
         } else {
@@ -477,12 +528,22 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             }
         }
         self.sim.params.limits = self.ctx.params.limits;
-        let (dt, _) = self.sim.time_step();
+        let (dt, limit) = self.sim.time_step();
         let p = &self.sim.particles;
         let speed = (0..self.n_own)
             .map(|i| p.u[i].iter().map(|c| c * c).sum::<f64>().sqrt())
             .fold(0.0, f64::max);
         let m = self.ctx.comm.max(&[-dt, speed]);
+        // the limit that set Δt: the one of the first rank whose Δt is the smallest
+        let code = |l: DtLimit| LIMITS.iter().position(|&k| k == l).unwrap_or(0) as f64;
+        let limit = self
+            .ctx
+            .comm
+            .all_gather(&[dt, code(limit)])
+            .iter()
+            .find(|v| v[0] == -m[0])
+            .and_then(|v| LIMITS.get(v[1] as usize).copied())
+            .unwrap_or(limit);
         self.sim.params.limits.dt_fixed = Some(-m[0]);
         self.sim.shift_speed = Some(m[1]);
         // the report's guard checks over every rank's own particles (the local sums hold the
@@ -495,12 +556,25 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             ..Default::default()
         };
         let dt = -m[0];
-        let report = self.sim.advance();
-        // every rank takes part in the global check, also one whose step failed
-        let checked = self.check_guard(&guard, report.as_ref().ok(), dt);
+        let report = match until {
+            Some(t) => self.sim.advance_toward(t),
+            None => self.sim.advance(),
+        };
         self.moved = self.sim.params.motion != Motion::Eulerian;
-        let mut report = report?;
-        checked?;
+        // every rank takes part in the global sums, also one whose step failed
+        let mut report = match report {
+            Ok(r) => r,
+            Err(e) => {
+                let _ = self.globalize(&guard, None, dt);
+                return Err(e);
+            }
+        };
+        self.globalize(&guard, Some(&mut report), dt)?;
+        // Δt was fixed on every rank: name the limit that set it, unless the step was
+        // shortened to land on `until`
+        if until.is_none_or(|t| report.time != t) {
+            report.dt_limit = limit;
+        }
         if report.surface.is_some() {
             report.surface = Some(self.surface_count());
         }
@@ -529,13 +603,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         }
     }
 
-    /// The guard of the scene over the own particles of every rank (collective): energy
-    /// growth, speed, correction ratio and (when set) the Theorem 4.5 ratio from global sums.
-    /// A rank whose step failed passes `None`; the others then fail too.
-    fn check_guard(
+    /// The step's report over the own particles of every rank, and the scene's guard on it
+    /// (collective): energy, speed, correction ratio, divergences, minimum spacing, shifts
+    /// and wall pushes from global sums and extremes, connectivity, `c0` and the Theorem 4.5
+    /// ratio from [`Self::global_diagnostics`]. A rank whose step failed passes `None`; the
+    /// others then fail with [`Error::PeerFailed`].
+    fn globalize(
         &mut self,
         guard: &StabilityGuard,
-        report: Option<&FlowReport>,
+        report: Option<&mut FlowReport>,
         dt: f64,
     ) -> Result<(), Error> {
         let failed = report.is_none() as u8 as f64;
@@ -545,20 +621,45 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             &p.vol,
             self.sim.params.projection.rho,
         );
-        let (mut ke, mut num, mut den, mut fastest) = (0.0, 0.0, 0.0, (0usize, -1.0f64));
-        if report.is_some() {
-            for i in 0..self.n_own {
+        let (src, div, disconnected) = self.sim.projection.rank_diagnostics();
+        // sums: energy, ‖u − u*‖², ‖u*‖², failed ranks, ‖D f‖², ‖D u‖², disconnected, pushes
+        let mut sums = [0.0; 8];
+        // maxima: −(smallest squared spacing), largest shift, Δt over its bound
+        let mut extremes = [f64::NEG_INFINITY; 3];
+        let mut fastest = (0usize, -1.0f64);
+        if let Some(report) = report.as_deref() {
+            let nl = &self.sim.nl;
+            for i in (0..self.n_own).filter(|&i| p.role[i].is_fluid()) {
                 let u2: f64 = p.u[i].iter().map(|c| c * c).sum();
-                ke += 0.5 * rho * vol[i] * u2;
+                sums[0] += 0.5 * rho * vol[i] * u2;
                 let d2: f64 = (0..D).map(|a| (p.u[i][a] - u_star[i][a]).powi(2)).sum();
-                num += vol[i] * d2;
-                den += vol[i] * u_star[i].iter().map(|c| c * c).sum::<f64>();
+                sums[1] += vol[i] * d2;
+                sums[2] += vol[i] * u_star[i].iter().map(|c| c * c).sum::<f64>();
+                sums[4] += vol[i] * src.get(i).map_or(0.0, |v| v * v);
+                sums[5] += vol[i] * div.get(i).map_or(0.0, |v| v * v);
                 if u2 > fastest.1 {
                     fastest = (i, u2);
                 }
+                let r2 = nl.row(i).map(|k| nl.r2()[k]).fold(f64::INFINITY, f64::min);
+                extremes[0] = extremes[0].max(-r2);
             }
+            sums[6] = disconnected.iter().filter(|&&i| i < self.n_own).count() as f64;
+            // the shifts and wall pushes of the own particles (the halo's are counted by
+            // their owners, and the outer ones' are not right)
+            extremes[1] = 0.0;
+            if self.sim.params.motion != Motion::Eulerian {
+                for i in 0..self.n_own {
+                    if let Some((shift, pushed)) = self.sim.last_move(i) {
+                        extremes[1] = extremes[1].max(shift);
+                        sums[7] += pushed as u8 as f64;
+                    }
+                }
+            }
+            extremes[2] = report.dt_ratio;
         }
-        let s = self.ctx.comm.sum(&[ke, num, den, failed]);
+        sums[3] = failed;
+        let s = self.ctx.comm.sum(&sums);
+        let e = self.ctx.comm.max(&extremes);
         // the fastest particle of all: speed, global id and position from every rank
         let mut mine = vec![fastest.1.max(0.0).sqrt(), -1.0];
         mine.extend_from_slice(&[0.0; D]);
@@ -581,7 +682,11 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let Some(report) = report else {
             return Ok(());
         };
-        let mut global = report.projection;
+        let g = self.global_diagnostics(dt);
+        let global = &mut report.projection;
+        global.connectivity = g.connectivity;
+        global.c0 = g.c0;
+        global.stability_ratio = g.stability_ratio;
         global.kinetic_energy = s[0];
         global.max_speed = best[0];
         global.correction_ratio = if s[2] > 0.0 {
@@ -589,9 +694,20 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         } else {
             0.0
         };
-        if guard.stability_ratio.is_some() {
-            global.stability_ratio = self.global_diagnostics(dt).stability_ratio;
-        }
+        global.div_before = s[4].sqrt() / rho * dt;
+        global.div_after = s[5].sqrt();
+        global.min_spacing = (-e[0]).sqrt();
+        let allowed = self.ctx.params.projection.allowed_floating;
+        let c = g.connectivity;
+        global.disconnected = if c.isolated == 0 && c.floating <= allowed {
+            0
+        } else {
+            s[6] as usize
+        };
+        report.wall_pushes = s[7] as usize;
+        report.max_shift = e[1];
+        report.dt_ratio = e[2];
+        report.energy_growth = self.prev_energy.filter(|&e0| e0 > 0.0).map(|e0| s[0] / e0);
         // the fastest particle, as the guard names it
         let mut one = Particles::new();
         let x: [f64; D] = std::array::from_fn(|a| best[2 + a]);
@@ -599,7 +715,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         one.push(x, u, 0.0, 1.0, Role::Fluid);
         let mut prev = self.prev_energy;
         let out = guard.check_report(
-            &global,
+            &report.projection,
             self.ctx.params.limits.u_ref,
             &mut prev,
             &one,
@@ -630,6 +746,76 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             e => e,
         })?;
         Ok(())
+    }
+
+    /// Every rank's own particles into `view` on rank `root` (collective): the copy of the
+    /// whole scene that scenes observe and recordings write (`view` is the simulation the
+    /// run was made from, every rank's). On `root` the real particles' positions,
+    /// velocities, pressures, volumes and band are the ranks' and, for moving particles, the
+    /// ghosts and neighbours are brought to the new positions
+    /// ([`Simulation::load_real_state`]); on every rank the clock is the run's. Costs a
+    /// message of `8 (4 + 2d)` bytes per own particle to `root`, and on `root` a neighbour
+    /// update of the whole scene per call.
+    pub fn gather_into(&mut self, view: &mut Simulation<D, B>, root: usize) -> Result<(), Error> {
+        let comm = &self.ctx.comm;
+        let (me, w) = (comm.rank(), 4 + 2 * D);
+        let p = &self.sim.particles;
+        let mut mine = Vec::with_capacity(self.n_own * w);
+        for i in 0..self.n_own {
+            mine.push(self.gid[i] as f64);
+            mine.extend_from_slice(&p.x[i]);
+            mine.extend_from_slice(&p.u[i]);
+            mine.extend_from_slice(&[p.p[i], p.vol[i]]);
+            mine.push((p.role[i] == Role::Dirichlet) as u8 as f64);
+        }
+        let counts = comm.all_gather(&[self.n_own as f64]);
+        let sends: Vec<(usize, Vec<f64>)> = if me == root {
+            Vec::new()
+        } else {
+            vec![(root, mine.clone())]
+        };
+        let mut recvs: Vec<(usize, Vec<f64>)> = if me == root {
+            (0..comm.size())
+                .filter(|&q| q != root)
+                .map(|q| (q, vec![0.0; counts[q][0] as usize * w]))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        comm.exchange(&sends, &mut recvs);
+        let clock = (self.sim.time, self.sim.steps);
+        if me != root {
+            self.ctx.counts.gathered += self.n_own as u64;
+            (view.time, view.steps) = clock;
+            return Ok(());
+        }
+        let n = view.particles.len();
+        let rows = std::iter::once(&mine)
+            .chain(recvs.iter().map(|(_, v)| v))
+            .flat_map(|v| v.chunks_exact(w));
+        let mut checked = Vec::with_capacity(n);
+        for r in rows {
+            let i = r[0] as usize;
+            if i >= n || !view.particles.role[i].is_real() {
+                return Err(InputError::parameter(
+                    "view",
+                    i as f64,
+                    "the gathered copy is not the simulation the decomposed run was made from",
+                )
+                .into());
+            }
+            checked.push((
+                i,
+                std::array::from_fn(|a| r[1 + a]),
+                std::array::from_fn(|a| r[1 + D + a]),
+                r[1 + 2 * D],
+                r[2 + 2 * D],
+                r[3 + 2 * D] != 0.0,
+            ));
+        }
+        self.ctx.counts.gathered += (checked.len() - self.n_own) as u64;
+        let moved = self.ctx.params.motion != Motion::Eulerian;
+        view.load_real_state(checked.into_iter(), moved, clock)
     }
 
     /// The global diagnostics of the step just taken (collective): components joined through

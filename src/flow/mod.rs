@@ -484,6 +484,65 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         Ok(())
     }
 
+    /// Takes the real particles' state from elsewhere — the copy of a decomposed run
+    /// gathered from its ranks, which scenes and recordings observe — as a step would leave
+    /// it: for each row `(particle, x, u, p, volume, in the band)` the particle's values (the
+    /// band only with a free surface), then, when `moved`, the ghosts and neighbours brought
+    /// to the new positions (the given volumes kept), the ghosts' velocity and pressure by
+    /// the boundary's rules, and the clock `(time, steps)`.
+    #[allow(clippy::type_complexity)]
+    pub(crate) fn load_real_state(
+        &mut self,
+        rows: impl Iterator<Item = (usize, [f64; D], [f64; D], f64, f64, bool)>,
+        moved: bool,
+        clock: (f64, u64),
+    ) -> Result<(), Error> {
+        let band = self.free_surface.is_some();
+        let p = &mut self.particles;
+        for (i, x, u, pr, vol, in_band) in rows {
+            p.x[i] = x;
+            p.u[i] = u;
+            p.p[i] = pr;
+            p.vol[i] = vol;
+            if band {
+                p.role[i] = if in_band {
+                    Role::Dirichlet
+                } else {
+                    Role::Fluid
+                };
+            }
+        }
+        let ghosts = self.plan.has(Stage::Ghosts);
+        if moved {
+            let real: Vec<(usize, f64)> = (0..self.particles.len())
+                .filter(|&i| self.particles.role[i].is_real())
+                .map(|i| (i, self.particles.vol[i]))
+                .collect();
+            self.refresh()?;
+            for (i, v) in real {
+                self.particles.vol[i] = v;
+            }
+            if ghosts {
+                self.boundary.place_ghosts(&mut self.particles);
+            }
+        }
+        if ghosts {
+            let rho_g = self.params.projection.rho_g();
+            let p = &mut self.particles;
+            self.boundary
+                .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+            self.boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
+        }
+        (self.time, self.steps) = clock;
+        Ok(())
+    }
+
+    /// Particle `i`'s last move beyond the advection: the length of its shift and whether the
+    /// wall margin pushed it (`None` before the first Lagrangian step).
+    pub(crate) fn last_move(&self, i: usize) -> Option<(f64, bool)> {
+        self.shift_scratch.last_move(i)
+    }
+
     /// Forces the next [`advance`](Self::advance) to search neighbours again, re-create the
     /// ghosts and recompute volumes, as if the particles had moved (benchmarks of reuse: a
     /// fixed-particle run otherwise builds its neighbour list once).

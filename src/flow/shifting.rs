@@ -157,6 +157,17 @@ pub(crate) struct ShiftScratch<const D: usize> {
     range: Vec<[[f64; 2]; D]>,
 }
 
+impl<const D: usize> ShiftScratch<D> {
+    /// Particle `i`'s last move beyond the advection ([`advance_particles`]): the length of
+    /// its shift (Fickian plus wall margin) and whether the wall margin pushed it; `None`
+    /// before the first move.
+    pub(crate) fn last_move(&self, i: usize) -> Option<(f64, bool)> {
+        let (s, w) = (self.shift.get(i)?, self.wall.get(i)?);
+        let d: [f64; D] = std::array::from_fn(|a| s[a] + w[a]);
+        Some((norm2(&d).sqrt(), w.iter().any(|&v| v != 0.0)))
+    }
+}
+
 /// What [`advance_particles`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct Moved {

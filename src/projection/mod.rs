@@ -569,6 +569,11 @@ pub struct ProjectionStep<const D: usize> {
     work: Vec<f64>,
     viscous_info: SolveInfo,
     diagnostics_cache: Option<(DiagnosticsKey, Components, f64, f64)>,
+    /// With a [`HaloSync`] (a rank of a decomposed run): the source's divergence `D f` of the
+    /// last projection at every particle, and the particles the last connectivity check
+    /// found disconnected ([`Disconnected::Float`]), for the run's global diagnostics.
+    source_divergence: Vec<f64>,
+    disconnected: Vec<usize>,
     gradient: GradientOperator<D>,
     /// `∇p/ρ` of the current pressure on the current configuration, computed by the driver
     /// ([`Self::pressure_gradient_into`]) just before [`predict`](Self::predict), which then
@@ -585,6 +590,18 @@ impl<const D: usize> ProjectionStep<D> {
     /// The predictor velocity `u*` of the last [`step`](Self::step) (ghosts filled).
     pub fn u_star(&self) -> &[[f64; D]] {
         &self.u_star
+    }
+
+    /// The divergences of the last projection at every particle, before (`D f`, the Poisson
+    /// source with `f = −(ρ/Δt) u*`) and after (`D uⁿ⁺¹`), as `div_before` and `div_after`
+    /// measure them (`‖·‖_ℓ2(Ω)`, the first scaled by `Δt/ρ`), and the particles the
+    /// connectivity check found disconnected. Kept only with a [`HaloSync`]: a rank of a
+    /// decomposed run sums them over its own particles (empty otherwise).
+    pub(crate) fn rank_diagnostics(&self) -> (&[f64], &[f64], &[usize]) {
+        if self.halo.is_none() {
+            return (&[], &[], &[]);
+        }
+        (&self.source_divergence, &self.rhs, &self.disconnected)
     }
 
     /// The last implicit viscous solve (default when none ran).
@@ -768,10 +785,16 @@ impl<const D: usize> ProjectionStep<D> {
             }
         };
         self.diagnostics_cache = Some((key, comps.clone(), c0, spacing));
+        self.disconnected.clear();
         let disconnected = match (comps.check(params.allowed_floating), params.disconnected) {
             (Ok(()), _) => 0,
             (Err(e), Disconnected::Fail) => return Err(e.into()),
-            (Err(e), Disconnected::Float) => e.offending.len(),
+            (Err(e), Disconnected::Float) => {
+                if self.halo.is_some() {
+                    self.disconnected.clone_from(&e.offending);
+                }
+                e.offending.len()
+            }
         };
         Ok((comps, c0, spacing, disconnected))
     }
@@ -1237,6 +1260,9 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.rhs,
         );
         report.div_before = norm_l2(vol, &self.rhs, role, Region::Omega) / rho * dt;
+        if self.halo.is_some() {
+            self.source_divergence.clone_from(&self.rhs);
+        }
         let f_l2 = norm_l2_vec(vol, f, role, Region::Omega);
         report.timings.source = t.elapsed().as_secs_f64();
 
@@ -1310,11 +1336,16 @@ impl<const D: usize> ProjectionStep<D> {
             boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
             boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
         }
-        if params.free_surface {
-            // a copy's corrected velocity reads φ beyond the global solve: its owner's
-            if let Some(h) = self.halo.as_mut() {
-                sync_vector(h.as_mut(), &mut self.u_new);
+        // a copy's corrected velocity reads φ beyond the global solve: its owner's (the
+        // extension into the band and the measured divergence read it)
+        // (the ghosts again from their sources, which the extension reads)
+        if let Some(h) = self.halo.as_mut() {
+            sync_vector(h.as_mut(), &mut self.u_new);
+            if ghosts {
+                boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
             }
+        }
+        if params.free_surface {
             stages::extend_to_band(nl, role, &mut self.u_new);
             if ghosts {
                 boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
