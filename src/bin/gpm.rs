@@ -32,7 +32,7 @@ use gpm::record::output::{check_input_file, check_output_file};
 use gpm::record::replay::{export_vtk, Replay};
 use gpm::record::rerun::rerun_file;
 use gpm::record::{ChunkCompression, RecordLevel, RecorderOptions};
-use gpm::scene::{run_recorded, Scene, SceneConfig, SceneVisitor};
+use gpm::scene::{run_recorded_with, Scene, SceneConfig, SceneVisitor};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -456,27 +456,28 @@ impl SceneVisitor for RunScene {
         cfg.validate()
             .with_context(|| format!("invalid {name} configuration"))?;
         check_estimates::<D, S>(&cfg, a.force)?;
-        // under mpirun: the Poisson solve over the ranks, rank 0 alone writes
-        let ranks = std::cell::RefCell::new(ranks::start(name)?);
-        let rank = ranks.borrow().as_ref().map_or(0, |r| r.rank());
-        let setup = |sim: &mut gpm::flow::Simulation<D, S::Boundary>| {
-            if let Some(r) = ranks.borrow_mut().as_mut() {
-                r.install(sim);
-            }
-        };
+        // under mpirun: the particles decomposed over the ranks, rank 0 gathers them after
+        // every step and alone observes and writes
+        let mut steps = ranks::start::<D, S::Boundary>()?;
+        let rank = steps.rank();
+        if steps.is_decomposed() && a.record == RecordLevel::Full {
+            bail!(
+                "--record full captures one process's projection inputs; a run over several \
+                 ranks records the diagnostics and particles (--record particles)"
+            );
+        }
         let t_end = cfg.t_end;
-        let step_observer = |pb: &ProgressBar, rep: &gpm::flow::FlowReport, sim: &_| {
-            let flow = observe(pb, rep, t_end);
-            Ok(match ranks.borrow_mut().as_mut() {
-                Some(r) => r.observe(rep, sim, flow),
-                None => flow,
-            })
-        };
-        let mpi_summary = || ranks.borrow_mut().as_mut().map(|r| r.finish()).transpose();
+        let step_observer =
+            |pb: &ProgressBar, rep: &gpm::flow::FlowReport, _: &_| Ok(observe(pb, rep, t_end));
         if rank != 0 {
             let pb = ProgressBar::hidden();
-            let run = gpm::scene::run_scene(&cfg, setup, |rep, sim| step_observer(&pb, rep, sim));
-            mpi_summary()?;
+            let run = gpm::scene::run_scene_with(
+                &cfg,
+                &mut steps,
+                |_| {},
+                |rep, sim| step_observer(&pb, rep, sim),
+            );
+            steps.summary();
             run.with_context(|| format!("{name} run failed on rank {rank}"))?;
             return Ok(ExitCode::SUCCESS);
         }
@@ -489,16 +490,17 @@ impl SceneVisitor for RunScene {
         };
         let bar_template = "{spinner} [{elapsed_precise}] [{bar:40}] {percent:>3}% {msg}";
         let pb = progress_bar(1000, a.quiet, bar_template);
-        let done = run_recorded(
+        let done = run_recorded_with(
             &cfg,
+            &mut steps,
             &path,
             options,
             &cfg.record_header(),
-            setup,
+            |_| {},
             |rep, sim| step_observer(&pb, rep, sim),
         )?;
         pb.finish_and_clear();
-        let mpi = mpi_summary()?;
+        let mpi = steps.summary();
         // the file is finished (or its error known) before the run's outcome is reported
         let record = match done.record {
             Ok(s) => {

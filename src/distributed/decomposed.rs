@@ -555,7 +555,6 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             dt_over_limit: guard.dt_over_limit,
             ..Default::default()
         };
-        let dt = -m[0];
         let report = match until {
             Some(t) => self.sim.advance_toward(t),
             None => self.sim.advance(),
@@ -565,11 +564,11 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let mut report = match report {
             Ok(r) => r,
             Err(e) => {
-                let _ = self.globalize(&guard, None, dt);
+                let _ = self.globalize(&guard, None);
                 return Err(e);
             }
         };
-        self.globalize(&guard, Some(&mut report), dt)?;
+        self.globalize(&guard, Some(&mut report))?;
         // Δt was fixed on every rank: name the limit that set it, unless the step was
         // shortened to land on `until`
         if until.is_none_or(|t| report.time != t) {
@@ -612,7 +611,6 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         &mut self,
         guard: &StabilityGuard,
         report: Option<&mut FlowReport>,
-        dt: f64,
     ) -> Result<(), Error> {
         let failed = report.is_none() as u8 as f64;
         let p = &self.sim.particles;
@@ -658,6 +656,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             extremes[2] = report.dt_ratio;
         }
         sums[3] = failed;
+        // the Poisson system's unknowns and entries: the own rows'
+        let (unknowns, nnz) = {
+            let dd = self.ctx.poisson.lock().expect("distributed solver lock");
+            let rows = dd.rows();
+            let m = rows.n_own();
+            (m as f64, rows.offsets.get(m).copied().unwrap_or(0) as f64)
+        };
+        let mut sums = sums.to_vec();
+        sums.extend_from_slice(&[unknowns, nnz]);
         let s = self.ctx.comm.sum(&sums);
         let e = self.ctx.comm.max(&extremes);
         // the fastest particle of all: speed, global id and position from every rank
@@ -682,6 +689,8 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let Some(report) = report else {
             return Ok(());
         };
+        // the step's own Δt (a step landing on an end time is shorter than the limits')
+        let dt = report.projection.dt;
         let g = self.global_diagnostics(dt);
         let global = &mut report.projection;
         global.connectivity = g.connectivity;
@@ -694,6 +703,8 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         } else {
             0.0
         };
+        global.solve.unknowns = s[8] as usize;
+        global.solve.nnz = s[9] as usize;
         global.div_before = s[4].sqrt() / rho * dt;
         global.div_after = s[5].sqrt();
         global.min_spacing = (-e[0]).sqrt();

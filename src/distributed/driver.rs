@@ -11,18 +11,9 @@ use crate::flow::{FlowReport, Simulation};
 use crate::poisson::{ExternalSolve, ExternalSystem};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-/// The scenes that run on several ranks (`gpm run` under `mpirun`).
-pub const SCENES: &[&str] = &["cavity", "taylor_green"];
-
 /// What a distributed run can report besides the crate's errors.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum DistributedError {
-    /// The scene has not been tried on several ranks.
-    #[error("scene '{scene}' does not run on several ranks yet (supported: {})", SCENES.join(", "))]
-    Unsupported {
-        /// The scene's name.
-        scene: String,
-    },
     /// A global diagnostic differs from the one the step computed on the whole configuration.
     #[error("step {step}: the global {quantity} is {global} but the step's own is {local}")]
     Mismatch {

@@ -929,7 +929,7 @@ impl Table {
 /// every step, and what it reports at the end. [`run_scene`] drives it.
 pub trait Scene<const D: usize>: SceneParams {
     /// The boundary of its simulation.
-    type Boundary: Boundary<D> + ToBoundarySpec<D> + Clone;
+    type Boundary: Boundary<D> + ToBoundarySpec<D> + Clone + 'static;
     /// What the scene accumulates over the steps (observables, samples).
     type State;
     /// The outcome of a run (printed by `gpm run` as `result`).

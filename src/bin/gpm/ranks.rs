@@ -1,144 +1,189 @@
-//! `gpm run` under `mpirun` (feature `mpi`): every rank runs the scene with the Poisson solve
-//! distributed over the ranks ([`gpm::distributed`]); rank 0 alone writes the output. Each
-//! step's global diagnostics are checked against the step's own, and a stop (signal, failed
-//! check) is agreed by all ranks so that none is left waiting in a collective.
+//! `gpm run` under `mpirun` (feature `mpi`): the scene's particles decomposed over the ranks
+//! ([`gpm::scene::ranks::Decomposed`]: each rank steps its own particles with a halo, the
+//! Poisson and viscous solves distributed); rank 0 gathers the particles after every step into
+//! its copy of the scene, which the scene observes, the recording writes and the tables and
+//! summary are made from. Stops (a signal, the scene's end) and failures are agreed by all
+//! ranks, so that none is left waiting in a collective.
 
 use anyhow::Result;
 use gpm::boundary::Boundary;
+use gpm::error::Error;
 use gpm::flow::{FlowReport, Simulation};
-use std::ops::ControlFlow;
+use gpm::scene::{OneProcess, Stepper, Votes};
+
+/// How this process takes the steps: alone, or as one rank of a decomposed run.
+pub enum Steps<const D: usize, B: Boundary<D> + Clone> {
+    /// One process.
+    One(OneProcess),
+    /// A rank under `mpirun`.
+    #[cfg(feature = "mpi")]
+    Ranks(imp::Ranks<D, B>),
+    /// (Without the `mpi` feature: never made.)
+    #[cfg(not(feature = "mpi"))]
+    #[allow(dead_code)]
+    Never(std::convert::Infallible, std::marker::PhantomData<B>),
+}
+
+impl<const D: usize, B: Boundary<D> + Clone> Steps<D, B> {
+    /// This process's rank (0 alone).
+    pub fn rank(&self) -> usize {
+        match self {
+            #[cfg(feature = "mpi")]
+            Steps::Ranks(r) => r.rank(),
+            _ => 0,
+        }
+    }
+
+    /// Whether the steps are a rank's of a decomposed run.
+    pub fn is_decomposed(&self) -> bool {
+        !matches!(self, Steps::One(_))
+    }
+
+    /// Every rank's particles, halo and message counts (a collective: all ranks call it);
+    /// `None` for one process.
+    pub fn summary(&self) -> Option<serde_json::Value> {
+        match self {
+            #[cfg(feature = "mpi")]
+            Steps::Ranks(r) => Some(r.summary()),
+            _ => None,
+        }
+    }
+}
+
+impl<const D: usize, B: Boundary<D> + Clone> Stepper<D, B> for Steps<D, B> {
+    fn start(&mut self, sim: &mut Simulation<D, B>) -> Result<(), Error> {
+        match self {
+            Steps::One(s) => Stepper::<D, B>::start(s, sim),
+            #[cfg(feature = "mpi")]
+            Steps::Ranks(r) => r.stepper.start(sim),
+            #[cfg(not(feature = "mpi"))]
+            Steps::Never(never, _) => match *never {},
+        }
+    }
+    fn step(
+        &mut self,
+        sim: &mut Simulation<D, B>,
+        until: Option<f64>,
+    ) -> Result<FlowReport, Error> {
+        match self {
+            Steps::One(s) => s.step(sim, until),
+            #[cfg(feature = "mpi")]
+            Steps::Ranks(r) => r.stepper.step(sim, until),
+            #[cfg(not(feature = "mpi"))]
+            Steps::Never(never, _) => match *never {},
+        }
+    }
+    fn agree(&mut self, votes: Votes) -> Votes {
+        match self {
+            Steps::One(s) => Stepper::<D, B>::agree(s, votes),
+            #[cfg(feature = "mpi")]
+            Steps::Ranks(r) => r.stepper.agree(votes),
+            #[cfg(not(feature = "mpi"))]
+            Steps::Never(never, _) => match *never {},
+        }
+    }
+}
+
+/// True when started by `mpirun` / `mpiexec` (Open MPI, or a PMI launcher).
+fn launched() -> bool {
+    ["OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some())
+}
+
+/// The steps of this process: under `mpirun` (feature `mpi`) a rank of the decomposed run,
+/// even with one rank; otherwise one process. Refuses `mpirun` without the `mpi` feature.
+pub fn start<const D: usize, B: Boundary<D> + Clone + 'static>() -> Result<Steps<D, B>> {
+    if !launched() {
+        return Ok(Steps::One(OneProcess));
+    }
+    #[cfg(feature = "mpi")]
+    {
+        Ok(Steps::Ranks(imp::Ranks::start()?))
+    }
+    #[cfg(not(feature = "mpi"))]
+    {
+        let size = std::env::var("OMPI_COMM_WORLD_SIZE").unwrap_or_default();
+        if size.is_empty() || size == "1" {
+            return Ok(Steps::One(OneProcess));
+        }
+        anyhow::bail!(
+            "started by mpirun with {size} ranks, but this gpm was built without the `mpi` \
+             feature: every rank would run the whole scene alone (build with `cargo build \
+             --release --features mpi`)"
+        )
+    }
+}
 
 #[cfg(feature = "mpi")]
 mod imp {
     use super::*;
-    use anyhow::{bail, Context};
-    use gpm::distributed::driver::SCENES;
+    use anyhow::Context;
     use gpm::distributed::mpi::{init, MpiComm};
-    use gpm::distributed::{Comm, DistributedError, DistributedRun};
+    use gpm::distributed::Comm;
+    use gpm::scene::ranks::Decomposed;
 
-    /// The distributed run of this rank.
-    pub struct Ranks {
-        run: DistributedRun<MpiComm>,
-        mismatch: Option<DistributedError>,
+    /// A rank of the decomposed run.
+    pub struct Ranks<const D: usize, B: Boundary<D> + Clone> {
+        pub stepper: Decomposed<MpiComm, D, B>,
         _universe: mpi::environment::Universe,
     }
 
-    /// True when started by `mpirun` / `mpiexec` (Open MPI, or a PMI launcher).
-    fn launched() -> bool {
-        ["OMPI_COMM_WORLD_SIZE", "PMIX_RANK", "PMI_RANK"]
-            .iter()
-            .any(|v| std::env::var_os(v).is_some())
+    impl<const D: usize, B: Boundary<D> + Clone + 'static> Ranks<D, B> {
+        pub fn start() -> Result<Self> {
+            let universe = init().context("MPI could not be initialised")?;
+            Ok(Ranks {
+                stepper: Decomposed::new(MpiComm, 0),
+                _universe: universe,
+            })
+        }
     }
 
-    /// `Some` under `mpirun` (even with one rank: the distributed solver runs), `None` otherwise.
-    pub fn start(scene: &str) -> Result<Option<Ranks>> {
-        if !launched() {
-            return Ok(None);
-        }
-        if !SCENES.contains(&scene) {
-            bail!(DistributedError::Unsupported {
-                scene: scene.into()
-            });
-        }
-        let universe = init().context("MPI could not be initialised")?;
-        Ok(Some(Ranks {
-            run: DistributedRun::new(MpiComm),
-            mismatch: None,
-            _universe: universe,
-        }))
-    }
-
-    impl Ranks {
+    impl<const D: usize, B: Boundary<D> + Clone> Ranks<D, B> {
         pub fn rank(&self) -> usize {
             MpiComm.rank()
         }
-        pub fn install<const D: usize, B: Boundary<D>>(&mut self, sim: &mut Simulation<D, B>) {
-            self.run.install(sim);
-        }
-        /// The step's check, and the stop agreed by every rank.
-        pub fn observe<const D: usize, B: Boundary<D>>(
-            &mut self,
-            rep: &FlowReport,
-            sim: &Simulation<D, B>,
-            flow: ControlFlow<()>,
-        ) -> ControlFlow<()> {
-            if let Err(e) = self.run.check_step(rep, sim) {
-                self.mismatch.get_or_insert(e);
+
+        /// Every rank's own and halo particles, the decomposition's counts and the solves'
+        /// messages (a collective: all ranks call it).
+        pub fn summary(&self) -> serde_json::Value {
+            let mut mine = vec![0.0; 13];
+            if let Some(run) = self.stepper.run() {
+                let (c, t) = (run.counts(), run.traffic());
+                mine = vec![
+                    run.n_own() as f64,
+                    run.n_halo() as f64,
+                    c.rebuilds as f64,
+                    c.rebalances as f64,
+                    c.migrated as f64,
+                    c.halo_received as f64,
+                    c.gathered as f64,
+                    t.messages as f64,
+                    t.bytes as f64,
+                    t.reductions as f64,
+                    t.solves as f64,
+                    t.iterations as f64,
+                    run.particle_bytes() as f64,
+                ];
             }
-            let stop = flow.is_break() || self.mismatch.is_some();
-            if MpiComm.max(&[stop as u8 as f64])[0] > 0.0 {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        }
-        /// Every rank's message counts (a collective: all ranks call it), or the failed check.
-        pub fn finish(&mut self) -> Result<serde_json::Value> {
-            let t = self.run.traffic();
-            let (own, halo) = {
-                let s = self.run.solver();
-                (s.rows().n_own(), s.rows().halo.len())
-            };
-            let mine = [
-                own as f64,
-                halo as f64,
-                t.messages as f64,
-                t.bytes as f64,
-                t.reductions as f64,
-                t.reduced_values as f64,
-                t.gathered_bytes as f64,
-                t.solves as f64,
-                t.iterations as f64,
-            ];
             let all = MpiComm.all_gather(&mine);
-            if let Some(e) = self.mismatch.take() {
-                return Err(e.into());
-            }
             let per_rank: Vec<_> = all
                 .iter()
                 .map(|v| {
                     serde_json::json!({
-                        "own_unknowns": v[0], "halo_unknowns": v[1], "messages": v[2],
-                        "bytes": v[3], "reductions": v[4], "reduced_values": v[5],
-                        "gathered_bytes": v[6], "solves": v[7], "iterations": v[8],
+                        "own_particles": v[0], "halo_particles": v[1], "rebuilds": v[2],
+                        "rebalances": v[3], "migrated": v[4], "halo_received": v[5],
+                        "gathered_particles": v[6], "solve_messages": v[7],
+                        "solve_bytes": v[8], "reductions": v[9], "solves": v[10],
+                        "cg_iterations": v[11], "particle_record_bytes": v[12],
                     })
                 })
                 .collect();
-            Ok(serde_json::json!({ "ranks": all.len(), "per_rank": per_rank }))
+            serde_json::json!({
+                "ranks": all.len(),
+                "decomposition": "particles (recursive coordinate bisection), gathered on rank 0",
+                "per_rank": per_rank,
+            })
         }
     }
 }
-
-#[cfg(not(feature = "mpi"))]
-mod imp {
-    use super::*;
-
-    /// Without the `mpi` feature there is one process and nothing to distribute.
-    pub enum Ranks {}
-
-    pub fn start(_scene: &str) -> Result<Option<Ranks>> {
-        Ok(None)
-    }
-
-    impl Ranks {
-        pub fn rank(&self) -> usize {
-            match *self {}
-        }
-        pub fn install<const D: usize, B: Boundary<D>>(&mut self, _sim: &mut Simulation<D, B>) {
-            match *self {}
-        }
-        pub fn observe<const D: usize, B: Boundary<D>>(
-            &mut self,
-            _rep: &FlowReport,
-            _sim: &Simulation<D, B>,
-            _flow: ControlFlow<()>,
-        ) -> ControlFlow<()> {
-            match *self {}
-        }
-        pub fn finish(&mut self) -> Result<serde_json::Value> {
-            match *self {}
-        }
-    }
-}
-
-pub use imp::start;
