@@ -17,7 +17,7 @@ pub enum Steps<const D: usize, B: Boundary<D> + Clone> {
     One(OneProcess),
     /// A rank under `mpirun`.
     #[cfg(feature = "mpi")]
-    Ranks(imp::Ranks<D, B>),
+    Ranks(Box<imp::Ranks<D, B>>),
     /// (Without the `mpi` feature: never made.)
     #[cfg(not(feature = "mpi"))]
     #[allow(dead_code)]
@@ -99,7 +99,7 @@ pub fn start<const D: usize, B: Boundary<D> + Clone + 'static>() -> Result<Steps
     }
     #[cfg(feature = "mpi")]
     {
-        Ok(Steps::Ranks(imp::Ranks::start()?))
+        Ok(Steps::Ranks(Box::new(imp::Ranks::start()?)))
     }
     #[cfg(not(feature = "mpi"))]
     {
