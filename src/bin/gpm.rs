@@ -460,10 +460,10 @@ impl SceneVisitor for RunScene {
         // every step and alone observes and writes
         let mut steps = ranks::start::<D, S::Boundary>()?;
         let rank = steps.rank();
-        if steps.is_decomposed() && a.record == RecordLevel::Full {
-            bail!(
-                "--record full captures one process's projection inputs; a run over several \
-                 ranks records the diagnostics and particles (--record particles)"
+        if steps.is_decomposed() && rank == 0 && a.record == RecordLevel::Full {
+            errln!(
+                "note: a run over several ranks records the gathered particle snapshots but not \
+                 the projection inputs (one process's; `gpm replay --rerun` has nothing to re-run)"
             );
         }
         let t_end = cfg.t_end;
