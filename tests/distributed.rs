@@ -466,14 +466,18 @@ impl gpm::scene::SceneVisitor for CompareDecomposed {
         let tight = |sim: &mut Simulation<D, S::Boundary>| {
             sim.params.projection.solve.rel_tol = 1e-12;
         };
-        let mut serial_reports = Vec::new();
-        let serial = run_scene(&cfg, tight, |rep, _| {
-            serial_reports.push(*rep);
-            Ok(if rep.step >= steps {
+        // stop after `steps` steps (or at the end time)
+        let stop = |step: u64| -> gpm::scene::Observed {
+            Ok(if step >= steps {
                 ControlFlow::Break(())
             } else {
                 ControlFlow::Continue(())
             })
+        };
+        let mut serial_reports = Vec::new();
+        let serial = run_scene(&cfg, tight, |rep, _| {
+            serial_reports.push(*rep);
+            stop(rep.step)
         })
         .unwrap_or_else(|e| panic!("{}: serial run: {e}", S::NAME));
         // (the configuration travels to the rank threads as text: a scene type need not be Sync)
@@ -485,11 +489,7 @@ impl gpm::scene::SceneVisitor for CompareDecomposed {
             let mut reports = Vec::new();
             let run = run_scene_with(&cfg, &mut stepper, tight, |rep, _| {
                 reports.push(*rep);
-                Ok(if rep.step >= steps {
-                    ControlFlow::Break(())
-                } else {
-                    ControlFlow::Continue(())
-                })
+                stop(rep.step)
             })
             .unwrap_or_else(|e| panic!("{}: decomposed run: {e}", S::NAME));
             root.then(|| {

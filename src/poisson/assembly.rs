@@ -49,6 +49,22 @@ pub struct Assembly {
     /// [`crate::poisson::SolveParams::pattern_within_h`].
     pub within_h: bool,
     values_reused: bool,
+    /// The per-chunk rows of [`Self::update_with_values`], kept between calls (a moving run
+    /// builds its pattern every step: no allocation once they have grown).
+    chunks: ChunkScratch,
+}
+
+/// Rows of one chunk: lengths, columns, values, diagonal positions.
+type ChunkRows = (Vec<u32>, Vec<u32>, Vec<f64>, Vec<u32>);
+
+/// Scratch rows per chunk (a clone starts empty: it is scratch, not state).
+#[derive(Debug, Default)]
+struct ChunkScratch(Vec<ChunkRows>);
+
+impl Clone for ChunkScratch {
+    fn clone(&self) -> Self {
+        ChunkScratch::default()
+    }
 }
 
 /// What the matrix values were computed from.
@@ -346,16 +362,18 @@ impl Assembly {
         let unknown = &self.unknown;
         let particle = &self.particle;
         const CHUNK: usize = 256;
-        type Part = (Vec<u32>, Vec<u32>, Vec<f64>, Vec<u32>);
-        let parts: Vec<Part> = (0..particle.len())
-            .into_par_iter()
-            .step_by(CHUNK)
-            .map(|start| {
+        let mut parts = std::mem::take(&mut self.chunks.0);
+        parts.resize_with(particle.len().div_ceil(CHUNK), Default::default);
+        parts
+            .par_iter_mut()
+            .enumerate()
+            .for_each(|(chunk, (lens, cols, vals, diag))| {
+                let start = chunk * CHUNK;
                 let end = (start + CHUNK).min(particle.len());
-                let mut lens = Vec::with_capacity(end - start);
-                let mut diag = Vec::with_capacity(end - start);
-                let mut cols = Vec::with_capacity((end - start) * 32);
-                let mut vals = Vec::with_capacity((end - start) * 32);
+                lens.clear();
+                diag.clear();
+                cols.clear();
+                vals.clear();
                 let mut row: Vec<(u32, f64)> = Vec::with_capacity(64);
                 for u in start..end {
                     let p = particle[u] as usize;
@@ -396,17 +414,16 @@ impl Assembly {
                     lens.push((cols.len() - first) as u32);
                     diag.push(pos as u32);
                 }
-                (lens, cols, vals, diag)
-            })
-            .collect();
+            });
         let total: usize = parts.iter().map(|p| p.1.len()).sum();
         self.clear_rows(total);
         self.values.clear();
         self.values.reserve(total);
-        for (lens, cols, vals, diag) in parts {
-            self.append_rows(&lens, &diag, &cols);
-            self.values.extend_from_slice(&vals);
+        for (lens, cols, vals, diag) in &parts {
+            self.append_rows(lens, diag, cols);
+            self.values.extend_from_slice(vals);
         }
+        self.chunks.0 = parts;
         self.key = Some(key);
         self.pattern_id += 1;
         self.derived_from = None;

@@ -10,7 +10,7 @@
 use super::amg::{AmgCache, AmgSetup};
 use super::assembly::Assembly;
 use super::direct::Direct;
-use super::iterative::{pcg, pcg_multi, pcg_with, CgInfo};
+use super::iterative::{pcg, pcg_multi_in, pcg_with, CgInfo, CgWork};
 use super::{SolveInfo, SolveParams, SolverKind};
 use crate::diagnostics::alias;
 use crate::error::SolveError;
@@ -31,6 +31,11 @@ pub struct HelmholtzSolver {
     b: Vec<f64>,
     x: Vec<f64>,
     sigma: Vec<f64>,
+    /// The ghosts' constants and the right side's constant part (`D` per particle, flat),
+    /// and the CG vectors: kept between solves (no allocation in a moving run's step).
+    consts: Vec<f64>,
+    rhs_const: Vec<f64>,
+    cg_work: CgWork,
     /// `Auto`: numeric Cholesky factorisations caused by changed values.
     auto_factorisations: u32,
     /// Set by [`Self::assume_moving`].
@@ -160,7 +165,9 @@ impl HelmholtzSolver {
         let t0 = Instant::now();
         let n = role.len();
         self.sigma.resize(n, 1.0);
-        let mut consts: Vec<[f64; D]> = vec![[0.0; D]; n];
+        self.consts.clear();
+        self.consts.resize(n * D, 0.0);
+        let (consts, _) = self.consts.as_chunks_mut::<D>();
         for j in 0..n {
             if let Role::Ghost { source, .. } = role[j] {
                 let (s, b) = ghost_rule(j);
@@ -196,7 +203,9 @@ impl HelmholtzSolver {
         // constant parts: c ω_i ω_j a_ij b_j over ghost and Dirichlet neighbours (none in a
         // periodic box: the pass is skipped)
         let has_const = role.iter().any(|r| !r.is_fluid());
-        let mut rhs_const: Vec<[f64; D]> = vec![[0.0; D]; m];
+        self.rhs_const.clear();
+        self.rhs_const.resize(m * D, 0.0);
+        let (rhs_const, _) = self.rhs_const.as_chunks_mut::<D>();
         if has_const {
             rhs_const
                 .par_iter_mut()
@@ -341,7 +350,15 @@ impl HelmholtzSolver {
                 let xs: [&mut [f64]; D] =
                     std::array::from_fn(|_| xs.next().expect("one column per component"));
                 let bs: [&[f64]; D] = std::array::from_fn(|d| &self.b[d * m..(d + 1) * m]);
-                let infos = pcg_multi(a, bs, xs, params.rel_tol, params.abs_tol, params.max_iters)?;
+                let infos = pcg_multi_in(
+                    &mut self.cg_work,
+                    a,
+                    bs,
+                    xs,
+                    params.rel_tol,
+                    params.abs_tol,
+                    params.max_iters,
+                )?;
                 for ri in infos {
                     info.iters += ri.iters;
                     info.abs_residual = info.abs_residual.max(ri.abs_residual);

@@ -182,18 +182,66 @@ pub fn pcg_multi<const K: usize>(
     abs_tol: f64,
     max_iters: usize,
 ) -> Result<[CgInfo; K], SolveError> {
+    let mut work = CgWork::default();
+    pcg_multi_in(&mut work, a, b, x, rel_tol, abs_tol, max_iters)
+}
+
+/// The vectors of [`pcg_multi`], kept between solves so that a solve every step allocates
+/// (and the system clears) no new memory.
+#[derive(Clone, Debug, Default)]
+pub struct CgWork {
+    inv_diag: Vec<f64>,
+    xs: Vec<f64>,
+    r: Vec<f64>,
+    z: Vec<f64>,
+    p: Vec<f64>,
+    q: Vec<f64>,
+}
+
+/// [`pcg_multi`] with its vectors in `work` (reused: no allocation once they have grown to
+/// the problem's size).
+pub fn pcg_multi_in<const K: usize>(
+    work: &mut CgWork,
+    a: &Assembly,
+    b: [&[f64]; K],
+    x: [&mut [f64]; K],
+    rel_tol: f64,
+    abs_tol: f64,
+    max_iters: usize,
+) -> Result<[CgInfo; K], SolveError> {
     let n = a.n();
-    let inv_diag = inv_diagonal(a);
+    work.inv_diag.clear();
+    work.inv_diag
+        .extend(
+            a.diag
+                .iter()
+                .map(|&k| a.values[k])
+                .map(|d| if d > 0.0 { 1.0 / d } else { 1.0 }),
+        );
+    let inv_diag = &work.inv_diag;
     let bnorm: [f64; K] = std::array::from_fn(|c| sum_squares(b[c]).sqrt());
     let tol: [f64; K] = std::array::from_fn(|c| abs_tol.max(rel_tol * bnorm[c]));
-    let mut xs: Vec<[f64; K]> = (0..n).map(|i| std::array::from_fn(|c| x[c][i])).collect();
-    for c in 0..K {
-        if bnorm[c] == 0.0 {
-            xs.iter_mut().for_each(|v| v[c] = 0.0);
+    for v in [
+        &mut work.xs,
+        &mut work.r,
+        &mut work.z,
+        &mut work.p,
+        &mut work.q,
+    ] {
+        v.clear();
+        v.resize(n * K, 0.0);
+    }
+    let (xs, _) = work.xs.as_chunks_mut::<K>();
+    let (r, _) = work.r.as_chunks_mut::<K>();
+    let (z, _) = work.z.as_chunks_mut::<K>();
+    let (p, _) = work.p.as_chunks_mut::<K>();
+    let (q, _) = work.q.as_chunks_mut::<K>();
+    for (i, v) in xs.iter_mut().enumerate() {
+        for c in 0..K {
+            v[c] = if bnorm[c] == 0.0 { 0.0 } else { x[c][i] };
         }
     }
-    let mut r = vec![[0.0; K]; n];
-    matvec_dot_multi(a, &xs, &mut r);
+    matvec_dot_multi(a, xs, r);
     r.par_iter_mut()
         .enumerate()
         .with_min_len(MIN_LEN)
@@ -202,13 +250,10 @@ pub fn pcg_multi<const K: usize>(
                 ri[c] = b[c][i] - ri[c];
             }
         });
-    let mut z: Vec<[f64; K]> = r
-        .iter()
-        .zip(&inv_diag)
-        .map(|(r, m)| r.map(|v| v * m))
-        .collect();
-    let mut p = z.clone();
-    let mut q = vec![[0.0; K]; n];
+    for ((zi, ri), m) in z.iter_mut().zip(r.iter()).zip(inv_diag) {
+        *zi = ri.map(|v| v * m);
+    }
+    p.copy_from_slice(z);
     let sums = |u: &[[f64; K]], v: &[[f64; K]]| -> [f64; K] {
         u.par_iter()
             .zip(v.par_iter())
@@ -217,8 +262,8 @@ pub fn pcg_multi<const K: usize>(
             .map(|(a, b)| std::array::from_fn(|c| a[c] * b[c]))
             .reduce(|| [0.0; K], |x, y| std::array::from_fn(|c| x[c] + y[c]))
     };
-    let mut rz = sums(&r, &z);
-    let mut rnorm = sums(&r, &r).map(f64::sqrt);
+    let mut rz = sums(r, z);
+    let mut rnorm = sums(r, r).map(f64::sqrt);
     let r0 = rnorm;
     // a column is active until it has converged (or has a zero right side)
     let mut active: [bool; K] = std::array::from_fn(|c| bnorm[c] > 0.0 && rnorm[c] > tol[c]);
@@ -226,7 +271,7 @@ pub fn pcg_multi<const K: usize>(
     while active.iter().any(|&a| a) {
         for c in 0..K {
             if active[c] && iters[c] >= max_iters {
-                let true_r = true_residuals(a, &b, &xs)[c];
+                let true_r = true_residuals(a, &b, xs)[c];
                 return Err(SolveError::NoConvergence {
                     iters: iters[c],
                     abs_residual: true_r,
@@ -234,7 +279,7 @@ pub fn pcg_multi<const K: usize>(
                 });
             }
         }
-        let pq = matvec_dot_multi(a, &p, &mut q);
+        let pq = matvec_dot_multi(a, p, q);
         let mut alpha = [0.0; K];
         for c in (0..K).filter(|&c| active[c]) {
             if pq[c].is_nan() || pq[c] <= 0.0 {
@@ -299,9 +344,9 @@ pub fn pcg_multi<const K: usize>(
             active[c] = active[c] && rnorm[c] > tol[c];
         }
     }
-    let true_r = true_residuals(a, &b, &xs);
+    let true_r = true_residuals(a, &b, xs);
     for (c, xc) in x.into_iter().enumerate() {
-        for (xi, v) in xc.iter_mut().zip(&xs) {
+        for (xi, v) in xc.iter_mut().zip(xs.iter()) {
             *xi = v[c];
         }
     }
