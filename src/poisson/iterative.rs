@@ -73,10 +73,22 @@ impl Preconditioner for Jacobi {
 }
 
 fn inv_diagonal(a: &Assembly) -> Vec<f64> {
-    a.diagonal()
-        .iter()
-        .map(|&d| if d > 0.0 { 1.0 / d } else { 1.0 })
-        .collect()
+    let mut out = Vec::new();
+    inv_diagonal_into(a, &mut out);
+    out
+}
+
+/// [`inv_diagonal`] into `out` (its memory reused).
+fn inv_diagonal_into(a: &Assembly, out: &mut Vec<f64>) {
+    out.clear();
+    out.extend(a.diag.iter().map(|&k| {
+        let d = a.values[k];
+        if d > 0.0 {
+            1.0 / d
+        } else {
+            1.0
+        }
+    }));
 }
 
 /// `a · b`, split at fixed lengths (see `MIN_LEN`).
@@ -210,14 +222,7 @@ pub fn pcg_multi_in<const K: usize>(
     max_iters: usize,
 ) -> Result<[CgInfo; K], SolveError> {
     let n = a.n();
-    work.inv_diag.clear();
-    work.inv_diag
-        .extend(
-            a.diag
-                .iter()
-                .map(|&k| a.values[k])
-                .map(|d| if d > 0.0 { 1.0 / d } else { 1.0 }),
-        );
+    inv_diagonal_into(a, &mut work.inv_diag);
     let inv_diag = &work.inv_diag;
     let bnorm: [f64; K] = std::array::from_fn(|c| sum_squares(b[c]).sqrt());
     let tol: [f64; K] = std::array::from_fn(|c| abs_tol.max(rel_tol * bnorm[c]));
