@@ -620,8 +620,9 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             self.sim.params.projection.rho,
         );
         let (src, div, disconnected) = self.sim.projection.rank_diagnostics();
-        // sums: energy, ‖u − u*‖², ‖u*‖², failed ranks, ‖D f‖², ‖D u‖², disconnected, pushes
-        let mut sums = [0.0; 8];
+        // sums: energy, ‖u − u*‖², ‖u*‖², failed ranks, ‖D f‖², ‖D u‖², disconnected, pushes,
+        // the Poisson system's unknowns and entries
+        let mut sums = [0.0; 10];
         // maxima: −(smallest squared spacing), largest shift, Δt over its bound
         let mut extremes = [f64::NEG_INFINITY; 3];
         let mut fastest = (0usize, -1.0f64);
@@ -663,8 +664,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             let m = rows.n_own();
             (m as f64, rows.offsets.get(m).copied().unwrap_or(0) as f64)
         };
-        let mut sums = sums.to_vec();
-        sums.extend_from_slice(&[unknowns, nnz]);
+        (sums[8], sums[9]) = (unknowns, nnz);
         let s = self.ctx.comm.sum(&sums);
         let e = self.ctx.comm.max(&extremes);
         // the fastest particle of all: speed, global id and position from every rank
