@@ -77,7 +77,13 @@ pub struct FlowConfig {
     /// Pressure-correction scheme.
     pub scheme: Scheme,
     /// Gradient of the predictor and the correction (difference `∇h` or renormalised `B∇h`).
+    /// The consistent operator set replaces the default `difference` by the least-squares
+    /// gradient; `renormalised` stays the user's choice there too.
     pub gradient: GradientKind,
+    /// Divergence of the Poisson source (`"sum_form"`, `"adjoint_bt"`, `"renormalised"` or
+    /// `"least_squares"`, [`crate::projection::SourceKind`]); `null` (default) takes the operator
+    /// set's (the sum form for `gpm`, least squares for `consistent`).
+    pub source: Option<crate::projection::SourceKind>,
     /// Frame of the particles.
     pub motion: Motion,
     /// Integrator of the explicit terms.
@@ -126,6 +132,7 @@ impl Default for FlowConfig {
             weight: Weight::WendlandC2,
             scheme: Scheme::Rotational,
             gradient: GradientKind::Difference,
+            source: None,
             motion: Motion::Eulerian,
             integrator: Integrator::Ab2,
             convection: ConvectionForm::SkewSymmetric,
@@ -255,6 +262,13 @@ impl FlowConfig {
         projection.gradient = self.gradient;
         if self.operators.consistent(self.motion == Motion::Lagrangian) {
             projection = projection.with_consistent_operators();
+            // a gradient other than the default is the user's choice over the set's
+            if self.gradient != GradientKind::Difference {
+                projection.gradient = self.gradient;
+            }
+        }
+        if let Some(s) = self.source {
+            projection.source = s;
         }
         projection.viscous_theta = self.viscous_theta;
         if let Some(l) = self.laplacian {
@@ -373,6 +387,7 @@ config_fields!(FlowConfig {
     weight,
     scheme,
     gradient,
+    source,
     motion,
     integrator,
     convection,
