@@ -393,3 +393,48 @@ fn disconnected_policy_key_resolves_by_the_frame() {
         other => panic!("expected a configuration error, got {other:?}"),
     }
 }
+
+/// The `source` and `gradient` keys: `null` takes the operator set's source (the sum form for
+/// fixed lattice particles, least squares for moving ones), an explicit one wins over the set,
+/// a renormalised gradient is kept under the consistent set (the default `difference` is
+/// replaced by least squares there), and the adjoint source without the gradient it is the
+/// adjoint of is refused by name when the flow starts.
+#[test]
+fn source_and_gradient_keys_resolve_over_the_operator_set() {
+    use gpm::consistent::GradientKind;
+    use gpm::projection::SourceKind;
+    use gpm::scene::config_from_json;
+    let params = |json: &str| {
+        let cfg: TaylorGreenConfig = config_from_json(json).expect(json);
+        let p = cfg.flow_params::<2>(1.0).projection;
+        (p.source, p.gradient)
+    };
+    assert_eq!(
+        params(r#"{"motion": "eulerian"}"#),
+        (SourceKind::SumForm, GradientKind::Difference)
+    );
+    assert_eq!(
+        params(r#"{"motion": "lagrangian"}"#),
+        (SourceKind::LeastSquares, GradientKind::LeastSquares)
+    );
+    assert_eq!(
+        params(r#"{"motion": "lagrangian", "gradient": "renormalised"}"#),
+        (SourceKind::LeastSquares, GradientKind::Renormalised)
+    );
+    assert_eq!(
+        params(r#"{"motion": "eulerian", "source": "least_squares"}"#),
+        (SourceKind::LeastSquares, GradientKind::Difference)
+    );
+    assert_eq!(
+        params(r#"{"motion": "lagrangian", "source": "sum_form"}"#),
+        (SourceKind::SumForm, GradientKind::LeastSquares)
+    );
+    let cfg: TaylorGreenConfig =
+        config_from_json(r#"{"motion": "eulerian", "source": "adjoint_bt"}"#).unwrap();
+    let err = cfg.flow_params::<2>(1.0).validate().unwrap_err();
+    assert!(err.to_string().contains("source"), "{err}");
+    match config_from_json::<TaylorGreenConfig>(r#"{"source": "upwind"}"#) {
+        Err(gpm::error::InputError::Config { key, .. }) => assert_eq!(key, "source"),
+        other => panic!("expected a configuration error, got {other:?}"),
+    }
+}
