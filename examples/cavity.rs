@@ -254,6 +254,11 @@ fn run(a: Args) -> Result<ExitCode> {
             res.t_end, res.steady_rate, cfg.scene.steady.tol
         ),
     }
+    if let Some(d) = res.steady_distance {
+        println!(
+            "estimated distance of the reported profiles from the steady ones: {d:.1e} (lid-speed units)"
+        );
+    }
     if let Some(g) = res.ghia {
         println!(
             "error vs Ghia et al. (1982), lid-speed units: u RMS {:.4} max {:.4} | v RMS {:.4} max {:.4}",

@@ -280,6 +280,44 @@ fn profile_rate(samples: &[(f64, Vec<f64>, Vec<f64>)], m: usize) -> Option<f64> 
     Some(du / (new.0 - old.0))
 }
 
+/// How far the mean of the last `m` profile samples is from the steady profiles they approach,
+/// estimated from the last three samples (evenly spaced in time, as the observer takes them):
+/// with the differences `d_k = s_k − s_{k−1}` (both profiles), `q = d_k·d_{k−1} / |d_{k−1}|²`
+/// the per-interval contraction of an approach dominated by its slowest mode and
+/// `Δ_k = max |d_k|`, the last sample is `Δ_k q/(1 − q)` from the limit
+/// and the one `j` intervals earlier `q^{−j}` times that; the mean of the last `m` is the mean of
+/// these. `None` with fewer than three samples, fewer than `m`, or `q` outside `(0, 0.99]`
+/// (not a geometric approach — an oscillating or still-developing flow).
+pub fn steady_distance(samples: &[(f64, Vec<f64>, Vec<f64>)], m: usize) -> Option<f64> {
+    let l = samples.len();
+    if l < 3 || m == 0 || m > l {
+        return None;
+    }
+    let diff = |a: &(f64, Vec<f64>, Vec<f64>), b: &(f64, Vec<f64>, Vec<f64>)| -> Vec<f64> {
+        a.1.iter()
+            .chain(&a.2)
+            .zip(b.1.iter().chain(&b.2))
+            .map(|(x, y)| x - y)
+            .collect()
+    };
+    let (v1, v0) = (
+        diff(&samples[l - 1], &samples[l - 2]),
+        diff(&samples[l - 2], &samples[l - 3]),
+    );
+    let d1 = v1.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if d1 == 0.0 {
+        return Some(0.0);
+    }
+    // the signed contraction: an oscillation (q < 0) is not a geometric approach
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let q = dot(&v1, &v0) / dot(&v0, &v0);
+    if !(q > 0.0 && q <= 0.99) {
+        return None;
+    }
+    let last = d1 * q / (1.0 - q);
+    Some((0..m).map(|j| last * q.powi(-(j as i32))).sum::<f64>() / m as f64)
+}
+
 /// Sample positions along the centre lines: 101 evenly spaced points plus the table's (Ghia's
 /// for the cavity).
 pub fn sample_positions(table: Option<&CentrelineTable>) -> (Vec<f64>, Vec<f64>) {
@@ -362,6 +400,10 @@ pub struct CavityResult {
     pub steady_time: Option<f64>,
     /// Last measured `max |Δprofile| / interval`.
     pub steady_rate: f64,
+    /// Estimated largest distance of the reported (averaged) profiles from the steady ones they
+    /// approach, in lid-speed units ([`steady_distance`]); `None` when the last samples do not
+    /// approach a limit geometrically (or with moving particles, whose samples carry noise).
+    pub steady_distance: Option<f64>,
     /// How steadiness was judged (text for the summary).
     pub steady_rule: String,
     /// Profile samples averaged.
@@ -590,6 +632,10 @@ impl CentrelineSamples {
             .map(|k| window.iter().map(|s| s.2[k]).sum::<f64>() / m)
             .collect();
         res.averaged_samples = window.len();
+        res.steady_distance = match st.compare_for(motion) {
+            SteadyCompare::Samples => steady_distance(&samples, window.len()),
+            SteadyCompare::Means => None,
+        };
         res.steady = steady_time.is_some();
         res.steady_time = steady_time;
         res.steady_rate = rate;
@@ -781,6 +827,9 @@ pub struct BoxSummary<S> {
     pub steady_time: Option<f64>,
     /// Last `max|Δprofile|/Δt`.
     pub steady_rate: f64,
+    /// Estimated largest distance of the reported profiles from the steady ones, lid-speed
+    /// units (`null` when it cannot be estimated; see [`steady_distance`]).
+    pub steady_distance: Option<f64>,
     /// How steadiness was judged.
     pub steadiness: String,
     /// Ranges of the per-step monitor (`c0_min`, `c0_max`, `min_spacing`,
@@ -817,6 +866,7 @@ impl<S: Clone> BoxSummary<S> {
             steady: res.steady,
             steady_time: res.steady_time,
             steady_rate: res.steady_rate,
+            steady_distance: res.steady_distance,
             steadiness: res.steady_rule.clone(),
             monitor: res.monitor.clone(),
             config: cfg.clone(),
@@ -1018,5 +1068,35 @@ mod tests {
         assert!(
             serde_json::from_str::<CavityConfig>(r#"{"steady": {"compare": "last"}}"#).is_err()
         );
+    }
+
+    /// A geometric approach `s_k = L + c q^k` (two profile points with their own amplitudes):
+    /// the estimate is the true distance of the mean of the last `m` samples from `L`; an
+    /// oscillating or growing sequence, too few samples and an exact steady state are handled.
+    #[test]
+    fn steady_distance_of_a_geometric_approach() {
+        let seq = |q: f64, count: usize| -> Vec<(f64, Vec<f64>, Vec<f64>)> {
+            (0..count)
+                .map(|k| {
+                    let e = q.powi(k as i32);
+                    (0.5 * k as f64, vec![0.3 + 0.02 * e], vec![-0.1 - 0.05 * e])
+                })
+                .collect()
+        };
+        for (q, m) in [(0.8, 1), (0.8, 4), (0.95, 5), (0.3, 2)] {
+            let s = seq(q, 12);
+            // the v point moves most: amplitude 0.05
+            let truth = (12 - m..12).map(|k| 0.05 * q.powi(k as i32)).sum::<f64>() / m as f64;
+            let est = steady_distance(&s, m).unwrap();
+            assert!(
+                (est - truth).abs() <= 1e-12 * truth.max(1e-300) + 1e-15,
+                "q {q} m {m}: {est} vs {truth}"
+            );
+        }
+        assert_eq!(steady_distance(&seq(-0.5, 12), 1), None, "oscillating");
+        assert_eq!(steady_distance(&seq(1.2, 12), 1), None, "growing");
+        assert_eq!(steady_distance(&seq(0.8, 2), 1), None, "two samples");
+        let flat: Vec<_> = (0..4).map(|k| (k as f64, vec![1.0], vec![2.0])).collect();
+        assert_eq!(steady_distance(&flat, 2), Some(0.0));
     }
 }
