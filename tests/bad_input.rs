@@ -623,6 +623,10 @@ fn invalid_configurations_name_the_key() {
     assert_eq!(cav(&|c| c.solve.abs_tol = -1.0), "solve.abs_tol");
     assert_eq!(cav(&|c| c.scene.steady.tol = f64::NAN), "steady.tol");
     assert_eq!(
+        cav(&|c| c.scene.steady.distance_tol = Some(0.0)),
+        "steady.distance_tol"
+    );
+    assert_eq!(
         cav(&|c| c.scene.steady.average_window = f64::NAN),
         "steady.average_window"
     );

@@ -51,6 +51,14 @@ pub struct SteadyCriterion {
     pub interval: f64,
     /// Steady when `max |Δprofile| / interval < tol` (default 1e-3).
     pub tol: f64,
+    /// With [`SteadyCompare::Samples`], also: the last sample's estimated distance from the
+    /// steady profiles ([`steady_distance`]) is at most this, in velocity units (default
+    /// 1e-4; `null`: the rate alone). A slow approach passes the rate test far from its limit
+    /// (Re 1000, n = 48: rate 6.6e-4 at t = 33.5 with the profiles still 4.0e-3 from their
+    /// steady values — 0.1 % of the RMS error); the distance test holds the run until the
+    /// stopping rule no longer limits the error. When the approach is not geometric (no
+    /// estimate) the rate decides alone.
+    pub distance_tol: Option<f64>,
     /// Average the samples of the last `average_window` time units (default 2).
     pub average_window: f64,
     /// Stop `average_window` after steadiness is first reached (default true).
@@ -94,6 +102,7 @@ impl Default for SteadyCriterion {
         SteadyCriterion {
             interval: 0.5,
             tol: 1e-3,
+            distance_tol: Some(1e-4),
             average_window: 2.0,
             stop_when_steady: true,
             compare: None,
@@ -207,6 +216,11 @@ pub fn validate_lid_and_steady(lid: f64, s: &SteadyCriterion) -> Result<(), Inpu
     }
     if s.tol.is_nan() || s.tol <= 0.0 {
         return bad("steady.tol", s.tol, "must be positive");
+    }
+    if let Some(d) = s.distance_tol {
+        if d.is_nan() || d <= 0.0 {
+            return bad("steady.distance_tol", d, "must be positive (or null)");
+        }
     }
     if !(s.average_window >= 0.0 && s.average_window.is_finite()) {
         return bad(
@@ -574,7 +588,13 @@ impl CentrelineSamples {
         };
         if let Some(rate) = profile_rate(&self.samples, m) {
             self.rate = rate;
-            if self.rate < st.tol && self.steady_time.is_none() {
+            let close = match (compare, st.distance_tol) {
+                (SteadyCompare::Samples, Some(tol)) => {
+                    steady_distance(&self.samples, 1).is_none_or(|d| d <= tol)
+                }
+                _ => true,
+            };
+            if self.rate < st.tol && close && self.steady_time.is_none() {
                 self.steady_time = Some(time);
             }
         }
@@ -641,9 +661,14 @@ impl CentrelineSamples {
         res.steady_rate = rate;
         res.steady_rule = match st.compare_for(motion) {
             SteadyCompare::Samples => format!(
-                "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L; \
+                "centre-line profiles sampled every {} time units; steady when max|Δprofile|/Δt < {} U²/L{}; \
                  profiles averaged over the last {} time units",
-                st.interval, st.tol, st.average_window
+                st.interval,
+                st.tol,
+                st.distance_tol.map_or(String::new(), |d| format!(
+                    " and the estimated distance from the steady profiles ≤ {d} U"
+                )),
+                st.average_window
             ),
             SteadyCompare::Means => format!(
                 "centre-line profiles sampled every {} time units; steady when the means of the last \
@@ -1098,5 +1123,42 @@ mod tests {
         assert_eq!(steady_distance(&seq(0.8, 2), 1), None, "two samples");
         let flat: Vec<_> = (0..4).map(|k| (k as f64, vec![1.0], vec![2.0])).collect();
         assert_eq!(steady_distance(&flat, 2), Some(0.0));
+    }
+
+    /// A slow geometric approach (`q = 0.95` per sample) passes the rate test long before its
+    /// profiles are near their limit: the distance test holds the run until the last sample is
+    /// within `distance_tol`, and without it the rate alone decides (earlier, farther).
+    #[test]
+    fn the_distance_test_holds_a_slow_approach_until_it_is_close() {
+        use crate::flow::Motion;
+        let st = SteadyCriterion {
+            average_window: 0.0,
+            ..Default::default()
+        };
+        // s(t_k) = 0.3 + 0.1 q^k, sampled every 0.5
+        let q: f64 = 0.95;
+        let run = |st: &SteadyCriterion| -> (f64, f64) {
+            let mut obs = CentrelineSamples::new(vec![0.5], vec![0.5], st);
+            for k in 1..=400 {
+                let t = 0.5 * k as f64;
+                let v = 0.3 + 0.1 * q.powi(k);
+                if obs
+                    .observe(st, Motion::Eulerian, t, |_, _| (vec![v], vec![-v]))
+                    .is_break()
+                {
+                    return (t, 0.1 * q.powi(k));
+                }
+            }
+            panic!("never steady");
+        };
+        let (t_rate, d_rate) = run(&SteadyCriterion {
+            distance_tol: None,
+            ..st
+        });
+        let (t_both, d_both) = run(&st);
+        // the rate test: 0.1 q^{k-1} (1 - q) / 0.5 < 1e-3 at k ≈ 47, 0.009 from the limit
+        assert!(d_rate > 5e-3 && d_rate < 1e-2, "{t_rate} {d_rate}");
+        assert!(t_both > t_rate, "{t_both} {t_rate}");
+        assert!(d_both <= 1e-4 && d_both > 1e-4 * q, "{t_both} {d_both}");
     }
 }
