@@ -14,7 +14,9 @@
 //! written to `steps.csv` (`d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step`),
 //! together with the peak memory, and a table is printed. The cavity reuse comparison runs the
 //! n = 100 cavity with every reuse switched on and off. The SpMV bandwidth of the Poisson matrix
-//! is compared with a stream copy measured in the same process.
+//! is compared with a stream copy measured in the same process. The growth of the time per step
+//! with N (the exponent of a least-squares power law per dimension and frame) is written to
+//! `scaling.csv`.
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -365,9 +367,14 @@ fn main_inner(a: Args) -> Result<()> {
         "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} | {:>9} {:>7} {:>6} {:>6}",
         "d", "N", "frame", "solver", "reuse", "thr", "neigh", "ops", "assem", "solve", "corr", "diag", "rec", "other", "total ms", "MB", "iters", "GB/s"
     );
+    // (d, frame, N, seconds per step) of the main rows (auto solver, reuse, 2 threads)
+    let mut sizes: Vec<(usize, String, f64, f64)> = Vec::new();
     for c in &cases {
         match spawn(c) {
             Ok(o) => {
+                if c.solver == SolverKind::Auto && c.reuse && c.threads == 2 {
+                    sizes.push((c.d, c.frame.clone(), c.n_particles as f64, o.total));
+                }
                 let ms = |k: usize| o.stages[k].1 * 1e3;
                 println!(
                     "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} | {:>9.2} {:>7.0} {:>6.1} {:>6.1}",
@@ -413,7 +420,54 @@ fn main_inner(a: Args) -> Result<()> {
         }
     }
     println!("wrote {}", a.out.join("steps.csv").display());
+    scaling(&a, &sizes)?;
     cavity_reuse(&a)?;
+    Ok(())
+}
+
+/// The exponent `b` of `time per step ∝ N^b` fitted by least squares to `ln t` against `ln N`
+/// over the sizes of each dimension and frame (main rows: auto solver, reuse, 2 threads),
+/// printed and written to `scaling.csv` (`d,frame,n_min,n_max,sizes,exponent`); issue 17 asks
+/// for `b ≤ 1.1` from 10⁴ to 10⁶ in 2D. Nothing with fewer than two sizes (`--quick`).
+fn scaling(a: &Args, sizes: &[(usize, String, f64, f64)]) -> Result<()> {
+    let mut csv = std::fs::File::create(a.out.join("scaling.csv"))?;
+    writeln!(csv, "d,frame,n_min,n_max,sizes,exponent")?;
+    let mut groups: Vec<(usize, String)> = sizes.iter().map(|s| (s.0, s.1.clone())).collect();
+    groups.sort();
+    groups.dedup();
+    for (d, frame) in groups {
+        let pts: Vec<(f64, f64)> = sizes
+            .iter()
+            .filter(|s| s.0 == d && s.1 == frame)
+            .map(|s| (s.2.ln(), s.3.ln()))
+            .collect();
+        if pts.len() < 2 {
+            continue;
+        }
+        let m = pts.len() as f64;
+        let (mx, my) = (
+            pts.iter().map(|p| p.0).sum::<f64>() / m,
+            pts.iter().map(|p| p.1).sum::<f64>() / m,
+        );
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        if sxx <= 0.0 {
+            continue;
+        }
+        let b = sxy / sxx;
+        let n_min = pts.iter().map(|p| p.0.exp()).fold(f64::INFINITY, f64::min);
+        let n_max = pts.iter().map(|p| p.0.exp()).fold(0.0, f64::max);
+        println!(
+            "{d}D {frame}: time per step ∝ N^{b:.3} (least squares over {} sizes, {n_min:.0} to {n_max:.0})",
+            pts.len()
+        );
+        writeln!(
+            csv,
+            "{d},{frame},{n_min:.0},{n_max:.0},{},{b:.4}",
+            pts.len()
+        )?;
+    }
+    println!("wrote {}", a.out.join("scaling.csv").display());
     Ok(())
 }
 
