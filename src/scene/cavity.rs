@@ -55,8 +55,8 @@ pub struct SteadyCriterion {
     /// steady profiles ([`steady_distance`]) is at most this, in velocity units (default
     /// 1e-4; `null`: the rate alone). A slow approach passes the rate test far from its limit
     /// (Re 1000, n = 48: rate 6.6e-4 at t = 33.5 with the profiles still 4.0e-3 from their
-    /// steady values — 0.1 % of the RMS error); the distance test holds the run until the
-    /// stopping rule no longer limits the error. Without a contraction to extrapolate from
+    /// steady values, RMS u error 1.69 % instead of the converged 1.59 %); the distance test
+    /// holds the run until the stopping rule no longer limits the error. Without a contraction to extrapolate from
     /// (a drift, or differences at round-off) the last change itself must be within a hundredth
     /// of it.
     pub distance_tol: Option<f64>,
