@@ -88,6 +88,10 @@ struct Args {
     /// operators, no-slip for the consistent ones), mirror or no-slip.
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
+    /// Width of the lid's corner ramp in side lengths (0: the classic lid, discontinuous at the
+    /// corners; up to 0.5).
+    #[arg(long, default_value_t = 0.0)]
+    lid_ramp: f64,
     /// Operator set: auto (gpm on the lattice, consistent for moving particles), gpm or
     /// consistent.
     #[arg(long, default_value = "auto")]
@@ -128,6 +132,7 @@ fn config(a: &Args) -> CavityConfig {
         c.convection = a.convection;
         c.viscous_theta = a.theta;
         c.scene.source_ghosts = a.source_ghosts;
+        c.scene.lid_ramp = a.lid_ramp;
         c.operators = a.operators;
         if a.laplacian.is_some() {
             c.laplacian = a.laplacian;

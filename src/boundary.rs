@@ -44,15 +44,25 @@ pub trait Boundary<const D: usize>: Send + Sync {
         let _ = (x, rho_g);
         self.fill_scalar(role, p);
     }
-    /// Continues a vector field into the ghosts.
+    /// Continues a vector field into the ghosts. [`VectorKind::Velocity`] takes every wall's
+    /// velocity as uniform; a wall whose velocity varies along it ([`Wall::ramp`]) needs the
+    /// positions: [`fill_velocity`](Self::fill_velocity).
     fn fill_vector(&self, role: &[Role], v: &mut [[f64; D]], kind: VectorKind);
+    /// Continues a velocity field into the ghosts by the walls' velocity rule, each wall's
+    /// velocity taken at the foot of the source particle `x` on it (the same as
+    /// `fill_vector(role, v, VectorKind::Velocity)` for uniform wall velocities, the default).
+    fn fill_velocity(&self, x: &[[f64; D]], role: &[Role], v: &mut [[f64; D]]) {
+        let _ = x;
+        self.fill_vector(role, v, VectorKind::Velocity)
+    }
     /// Continues a velocity-gradient field `G[a][b] = ∂u_a/∂x_b` into the ghosts as the
     /// gradient of the velocity images: `G_g = Σ G_src R`, `Σ` the diagonal signs of the
     /// velocity rule (all −1 per no-slip wall crossed, −1 on the normal component per free-slip
-    /// one) and `R` the reflection (column `b` negated for each crossed wall normal to axis `b`). The
-    /// default (no ghosts) does nothing.
-    fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
-        let _ = (role, g);
+    /// one) and `R` the reflection (column `b` negated for each crossed wall normal to axis `b`),
+    /// plus `2 ∂U/∂x_b` across one wall whose velocity `U` varies along it ([`Wall::ramp`]; `x`
+    /// the particles' positions). The default (no ghosts) does nothing.
+    fn fill_velocity_gradient(&self, x: &[[f64; D]], role: &[Role], g: &mut [[[f64; D]; D]]) {
+        let _ = (x, role, g);
     }
     /// Moves ghosts to the images of their sources (after the sources moved).
     fn place_ghosts(&self, p: &mut Particles<D>);
@@ -91,12 +101,12 @@ pub trait Boundary<const D: usize>: Send + Sync {
         let _ = (x, margin);
         [0.0; D]
     }
-    /// The velocity rule of a ghost reflected across the walls in `walls` as an affine map
-    /// `u_g[d] = σ[d] u_src[d] + b[d]` (`σ[d] = ±1`: all −1 across one no-slip wall, −1 only for
-    /// the normal component across a free-slip one), for implicit solves that need it as matrix
-    /// entries.
-    fn velocity_affine(&self, walls: u8) -> ([f64; D], [f64; D]) {
-        let _ = walls;
+    /// The velocity rule of a ghost reflected across the walls in `walls` from a source at
+    /// `x_src` as an affine map `u_g[d] = σ[d] u_src[d] + b[d]` (`σ[d] = ±1`: all −1 across one
+    /// no-slip wall, −1 only for the normal component across a free-slip one; `b` from the walls'
+    /// velocities at the source's foot), for implicit solves that need it as matrix entries.
+    fn velocity_affine(&self, walls: u8, x_src: &[f64; D]) -> ([f64; D], [f64; D]) {
+        let _ = (walls, x_src);
         ([1.0; D], [0.0; D])
     }
     /// Checks that the ghosts of `p` are those this boundary would make and place for an
@@ -126,9 +136,28 @@ pub struct Wall<const D: usize> {
     /// and reverses the normal one) or no-slip (`false`, the default: the image's velocity is
     /// `2U − u`).
     pub slip: bool,
+    /// Width `δ` over which the wall's velocity falls to zero towards every wall that meets it
+    /// (`0`, the default: uniform). At a foot point at distances `d_j` from the other walls
+    /// (those normal to another axis) the wall moves with `U Π_j S(d_j/δ)`, `S(t) = 6t⁵ − 15t⁴ +
+    /// 10t³` for `t < 1` (else 1): a lid whose speed is continuous at its corners, the
+    /// regularised lid-driven cavity for `δ = ½` side, a corner treatment that vanishes with `δ`.
+    pub ramp: f64,
 }
 
 impl<const D: usize> Wall<D> {
+    /// A wall at rest, no-slip, uniform: the plane `x_axis = position` with the fluid on the
+    /// `inward` side (`+1`: at larger coordinates).
+    pub fn at_rest(axis: usize, position: f64, inward: f64) -> Self {
+        Wall {
+            axis,
+            position,
+            inward,
+            velocity: [0.0; D],
+            slip: false,
+            ramp: 0.0,
+        }
+    }
+
     /// Signed distance of `x` from the plane, positive on the fluid side.
     #[inline]
     pub fn distance(&self, x: &[f64; D]) -> f64 {
@@ -138,7 +167,13 @@ impl<const D: usize> Wall<D> {
     /// its normal component `2U_n − v_n` (free-slip).
     #[inline]
     pub fn velocity_image(&self, v: &[f64; D]) -> [f64; D] {
-        let u = self.velocity;
+        self.velocity_image_with(v, &self.velocity)
+    }
+
+    /// [`velocity_image`](Self::velocity_image) with the wall moving at `u` (a wall whose
+    /// velocity varies along it, at the source's foot).
+    #[inline]
+    pub fn velocity_image_with(&self, v: &[f64; D], u: &[f64; D]) -> [f64; D] {
         if self.slip {
             let mut y = *v;
             y[self.axis] = 2.0 * u[self.axis] - v[self.axis];
@@ -181,20 +216,8 @@ impl<const D: usize> Walls<D> {
     pub fn closed_box(lo: [f64; D], hi: [f64; D]) -> Self {
         let mut walls = Vec::new();
         for a in 0..D {
-            walls.push(Wall {
-                axis: a,
-                position: lo[a],
-                inward: 1.0,
-                velocity: [0.0; D],
-                slip: false,
-            });
-            walls.push(Wall {
-                axis: a,
-                position: hi[a],
-                inward: -1.0,
-                velocity: [0.0; D],
-                slip: false,
-            });
+            walls.push(Wall::at_rest(a, lo[a], 1.0));
+            walls.push(Wall::at_rest(a, hi[a], -1.0));
         }
         Walls {
             walls,
@@ -224,22 +247,7 @@ impl<const D: usize> Walls<D> {
         let mut plo = lo;
         plo[a] = 0.0;
         Walls {
-            walls: vec![
-                Wall {
-                    axis: a,
-                    position: lo[a],
-                    inward: 1.0,
-                    velocity: [0.0; D],
-                    slip: false,
-                },
-                Wall {
-                    axis: a,
-                    position: hi[a],
-                    inward: -1.0,
-                    velocity: [0.0; D],
-                    slip: false,
-                },
-            ],
+            walls: vec![Wall::at_rest(a, lo[a], 1.0), Wall::at_rest(a, hi[a], -1.0)],
             periodic: Periodicity { lo: plo, len },
         }
     }
@@ -265,19 +273,65 @@ impl<const D: usize> Walls<D> {
         y
     }
 
+    /// The velocity of wall `k` at the foot of a point `x` (inside the walls): its velocity
+    /// times the ramp factor `Π_j S(d_j/δ)` ([`Wall::ramp`]), and the factor's gradient.
+    fn wall_velocity_at(&self, k: usize, x: &[f64; D]) -> ([f64; D], [f64; D]) {
+        let w = &self.walls[k];
+        if w.ramp <= 0.0 || w.velocity.iter().all(|&u| u == 0.0) {
+            return (w.velocity, [0.0; D]);
+        }
+        let (mut f, mut df) = (1.0, [0.0; D]);
+        for (j, o) in self.walls.iter().enumerate() {
+            if j == k || o.axis == w.axis {
+                continue;
+            }
+            let t = (o.distance(x) / w.ramp).clamp(0.0, 1.0);
+            let s = t * t * t * (10.0 + t * (6.0 * t - 15.0));
+            let ds = if t < 1.0 && t > 0.0 {
+                30.0 * t * t * (1.0 - t) * (1.0 - t) / w.ramp * o.inward
+            } else {
+                0.0
+            };
+            // product rule: d(f s) = df s + f ds
+            for d in df.iter_mut() {
+                *d *= s;
+            }
+            df[o.axis] += f * ds;
+            f *= s;
+        }
+        (w.velocity.map(|u| u * f), df)
+    }
+
+    /// True when some wall's velocity varies along it.
+    fn ramped(&self) -> bool {
+        self.walls
+            .iter()
+            .any(|w| w.ramp > 0.0 && w.velocity.iter().any(|&u| u != 0.0))
+    }
+
     fn velocity_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
+        self.velocity_image_at(v, mask, None)
+    }
+
+    /// The velocity rule across the walls in `mask` for a source with velocity `v` at `x`
+    /// (`None`: every wall's velocity uniform).
+    fn velocity_image_at(&self, v: &[f64; D], mask: u8, x: Option<&[f64; D]>) -> [f64; D] {
         let ks: Vec<usize> = (0..self.walls.len())
             .filter(|k| mask & (1 << k) != 0)
             .collect();
+        let image = |k: usize, y: &[f64; D]| match x {
+            Some(x) => self.walls[k].velocity_image_with(y, &self.wall_velocity_at(k, x).0),
+            None => self.walls[k].velocity_image(y),
+        };
         match ks.len() {
-            1 => self.walls[ks[0]].velocity_image(v),
+            1 => image(ks[0], v),
             _ => {
                 // apply the walls in turn, in both (all) cyclic orders, and average
                 let mut acc = [0.0; D];
                 for start in 0..ks.len() {
                     let mut y = *v;
                     for m in 0..ks.len() {
-                        y = self.walls[ks[(start + m) % ks.len()]].velocity_image(&y);
+                        y = image(ks[(start + m) % ks.len()], &y);
                     }
                     for a in 0..D {
                         acc[a] += y[a];
@@ -349,10 +403,10 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         !self.walls.is_empty()
     }
 
-    fn velocity_affine(&self, walls: u8) -> ([f64; D], [f64; D]) {
+    fn velocity_affine(&self, walls: u8, x_src: &[f64; D]) -> ([f64; D], [f64; D]) {
         (
             self.velocity_signs(walls),
-            self.velocity_image(&[0.0; D], walls),
+            self.velocity_image_at(&[0.0; D], walls, Some(x_src)),
         )
     }
 
@@ -389,8 +443,18 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         });
     }
 
-    fn fill_velocity_gradient(&self, role: &[Role], g: &mut [[[f64; D]; D]]) {
-        fill_from_sources(role, g, |s, walls| {
+    fn fill_velocity(&self, x: &[[f64; D]], role: &[Role], v: &mut [[f64; D]]) {
+        if !self.ramped() {
+            return self.fill_vector(role, v, VectorKind::Velocity);
+        }
+        fill_from_sources_at(role, v, |s, src, walls| {
+            self.velocity_image_at(s, walls, Some(&x[src]))
+        });
+    }
+
+    fn fill_velocity_gradient(&self, x: &[[f64; D]], role: &[Role], g: &mut [[[f64; D]; D]]) {
+        let ramped = self.ramped();
+        fill_from_sources_at(role, g, |s, src, walls| {
             let sigma = self.velocity_signs(walls);
             let mut flip = [1.0; D];
             for (k, w) in self.walls.iter().enumerate() {
@@ -398,7 +462,23 @@ impl<const D: usize> Boundary<D> for Walls<D> {
                     flip[w.axis] = -flip[w.axis];
                 }
             }
-            std::array::from_fn(|a| std::array::from_fn(|b| sigma[a] * flip[b] * s[a][b]))
+            let mut out: [[f64; D]; D] =
+                std::array::from_fn(|a| std::array::from_fn(|b| sigma[a] * flip[b] * s[a][b]));
+            // one wall crossed: u_g(y) = 2 U(foot) − L u(R y) gains 2 ∂U/∂y (the foot moves with
+            // y along the wall); across several the orders' mean does not depend on U's ramp
+            if ramped && walls.count_ones() == 1 {
+                let k = walls.trailing_zeros() as usize;
+                let w = &self.walls[k];
+                if !w.slip {
+                    let (_, df) = self.wall_velocity_at(k, &x[src]);
+                    for a in 0..D {
+                        for b in 0..D {
+                            out[a][b] += 2.0 * w.velocity[a] * df[b];
+                        }
+                    }
+                }
+            }
+            out
         });
     }
 
@@ -442,7 +522,7 @@ impl<const D: usize> Boundary<D> for Walls<D> {
             let x = p.x[i];
             for (mask, _) in self.image_masks(&x, reach) {
                 let y = self.image(&x, mask);
-                let u = self.velocity_image(&p.u[i], mask);
+                let u = self.velocity_image_at(&p.u[i], mask, Some(&x));
                 let (pi, vi) = (p.p[i], p.vol[i]);
                 p.push(
                     y,
@@ -618,6 +698,15 @@ fn fill_from_sources<T: Copy + Send + Sync>(
     v: &mut [T],
     f: impl Fn(&T, u8) -> T + Sync,
 ) {
+    fill_from_sources_at(role, v, |s, _, walls| f(s, walls))
+}
+
+/// [`fill_from_sources`] with the source's index passed on.
+fn fill_from_sources_at<T: Copy + Send + Sync>(
+    role: &[Role],
+    v: &mut [T],
+    f: impl Fn(&T, usize, u8) -> T + Sync,
+) {
     let first = first_ghost(role).min(v.len());
     let (src, ghosts) = v.split_at_mut(first);
     ghosts
@@ -625,7 +714,7 @@ fn fill_from_sources<T: Copy + Send + Sync>(
         .zip(role[first..].par_iter())
         .for_each(|(g, r)| {
             if let Role::Ghost { source, walls } = r {
-                *g = f(&src[*source as usize], *walls);
+                *g = f(&src[*source as usize], *source as usize, *walls);
             }
         });
 }

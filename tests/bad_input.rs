@@ -626,6 +626,9 @@ fn invalid_configurations_name_the_key() {
         cav(&|c| c.scene.steady.distance_tol = Some(0.0)),
         "steady.distance_tol"
     );
+    assert_eq!(cav(&|c| c.scene.lid_ramp = 0.7), "lid_ramp");
+    assert_eq!(cav(&|c| c.scene.lid_ramp = f64::NAN), "lid_ramp");
+    assert_eq!(cav(&|c| c.scene.lid_ramp = -0.1), "lid_ramp");
     assert_eq!(
         cav(&|c| c.scene.steady.average_window = f64::NAN),
         "steady.average_window"

@@ -51,6 +51,7 @@ fn every_form_is_exact_on_linear_fields_away_from_the_boundary() {
         conv.accel_into(
             &nl,
             &p.vol,
+            &p.x,
             &p.role,
             &NoBoundary,
             None,
@@ -93,7 +94,7 @@ fn ghost_gradients_are_those_of_the_no_slip_images() {
     for gg in &mut g[first..] {
         *gg = [[f64::NAN; 2]; 2];
     }
-    walls.fill_velocity_gradient(&p.role, &mut g);
+    walls.fill_velocity_gradient(&p.x, &p.role, &mut g);
     let mask = |i: usize| match p.role[i] {
         Role::Ghost { walls, .. } => walls,
         _ => unreachable!(),

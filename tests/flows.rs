@@ -191,13 +191,7 @@ fn hydrostatic_error(n: usize, scheme: Scheme) -> (f64, f64) {
     for x in lattice([-4.0 * dx, 1.0], [1.0 + 4.0 * dx, 1.0 + 4.0 * dx], dx) {
         p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Dirichlet);
     }
-    let wall = |axis, position, inward| Wall {
-        axis,
-        position,
-        inward,
-        velocity: [0.0; 2],
-        slip: false,
-    };
+    let wall = |axis, position, inward| Wall::at_rest(axis, position, inward);
     let walls = Walls {
         walls: vec![wall(0, 0.0, 1.0), wall(0, 1.0, -1.0), wall(1, 0.0, 1.0)],
         periodic: Periodicity::none(),
@@ -283,22 +277,7 @@ fn poiseuille_channel_with_periodic_axis_and_walls() {
             p.push(x, [0.0, 0.0], 0.0, dx * dx, Role::Fluid);
         }
         let walls = Walls {
-            walls: vec![
-                Wall {
-                    axis: 1,
-                    position: 0.0,
-                    inward: 1.0,
-                    velocity: [0.0; 2],
-                    slip: false,
-                },
-                Wall {
-                    axis: 1,
-                    position: 1.0,
-                    inward: -1.0,
-                    velocity: [0.0; 2],
-                    slip: false,
-                },
-            ],
+            walls: vec![Wall::at_rest(1, 0.0, 1.0), Wall::at_rest(1, 1.0, -1.0)],
             periodic: Periodicity {
                 lo: [0.0, 0.0],
                 len: [1.0, 0.0],

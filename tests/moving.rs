@@ -106,7 +106,7 @@ fn free_slip_images_keep_the_tangential_velocity_and_reverse_the_normal_one() {
                     expected[1] = -expected[1];
                 }
             }
-            let (sigma, b) = walls.velocity_affine(mask);
+            let (sigma, b) = walls.velocity_affine(mask, &xs);
             for a in 0..2 {
                 assert!(
                     (ug[a] - expected[a]).abs() < 1e-14,
@@ -148,7 +148,10 @@ fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
         walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
         let nl = NeighborList::build(config, &p.x).unwrap();
         let rule = |j: usize| match p.role[j] {
-            Role::Ghost { walls: mask, .. } => walls.velocity_affine(mask),
+            Role::Ghost {
+                walls: mask,
+                source,
+            } => walls.velocity_affine(mask, &p.x[source as usize]),
             _ => ([1.0; 2], [0.0; 2]),
         };
         let r = p.u.clone();
@@ -700,4 +703,107 @@ fn the_poisson_factor_prepared_beside_the_predictor_gives_the_same_run() {
             "step {k}: no factorisation time reported"
         );
     }
+}
+
+/// The ramped lid (`Wall::ramp`): a ghost across the lid alone carries `2 U S(d/δ) − u`, `S`
+/// the quintic smooth step of the distance `d` to the nearer side wall (written out here), a
+/// corner ghost is the ramp-free mean of the two orders, the implicit solves' affine rule agrees,
+/// and the ghosts' velocity gradient is the derivative of that image field — checked by central
+/// differences of the hand-written image of a linear field.
+#[test]
+fn a_ramped_lid_carries_the_smooth_step_into_its_ghosts() {
+    let (lid, delta) = (0.8, 0.2);
+    let mut walls = Walls::<2>::cavity(1.0, lid);
+    for w in &mut walls.walls {
+        if w.velocity[0] != 0.0 {
+            w.ramp = delta;
+        }
+    }
+    let step = |t: f64| {
+        let t = t.clamp(0.0, 1.0);
+        t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+    };
+    let u_lid = |x: f64| lid * step(x.min(1.0 - x) / delta);
+    // a linear velocity field u(x) = A x + c
+    let a = [[0.3, -0.7], [1.1, 0.4]];
+    let c = [0.05, -0.2];
+    let field = |x: [f64; 2]| -> [f64; 2] {
+        std::array::from_fn(|i| a[i][0] * x[0] + a[i][1] * x[1] + c[i])
+    };
+    // the image across the lid as a function of the ghost's position y: the source sits at
+    // the reflection (y0, 2 − y1), the lid's speed at the foot y0
+    let image = |y: [f64; 2]| -> [f64; 2] {
+        let us = field([y[0], 2.0 - y[1]]);
+        [2.0 * u_lid(y[0]) - us[0], -us[1]]
+    };
+    let mut p = Particles::<2>::new();
+    // under the lid inside the ramp, under it beyond the ramp, in the top-left corner
+    for x in [[0.07, 0.96], [0.5, 0.95], [0.03, 0.97]] {
+        p.push(x, field(x), 0.0, 0.01, Role::Fluid);
+    }
+    walls.make_ghosts(&mut p, 0.1);
+    let made = p.u.clone();
+    p.u.iter_mut().skip(3).for_each(|u| *u = [f64::NAN; 2]);
+    walls.fill_velocity(&p.x.clone(), &p.role.clone(), &mut p.u);
+    let mut g = vec![a; p.len()];
+    walls.fill_velocity_gradient(&p.x, &p.role, &mut g);
+    let mut lid_only = 0;
+    for k in 3..p.len() {
+        let Role::Ghost {
+            source,
+            walls: mask,
+        } = p.role[k]
+        else {
+            panic!("particle {k} should be a ghost")
+        };
+        let (xs, us, xg, ug) = (p.x[source as usize], p.u[source as usize], p.x[k], p.u[k]);
+        assert_eq!(
+            made[k], ug,
+            "make_ghosts and fill_velocity agree at ghost {k}"
+        );
+        let across_lid = (xs[1] + xg[1] - 2.0).abs() < 1e-12;
+        let across_side = (xs[0] + xg[0]).abs() < 1e-12;
+        let expected = match (across_lid, across_side) {
+            (true, false) => [2.0 * u_lid(xs[0]) - us[0], -us[1]],
+            (false, true) => [-us[0], -us[1]],
+            // lid then left: −(2U − u) = u − 2U; left then lid: 2U + u; mean u
+            (true, true) => us,
+            _ => panic!("ghost {k} is no image"),
+        };
+        let (sigma, b) = walls.velocity_affine(mask, &xs);
+        for d in 0..2 {
+            assert!(
+                (ug[d] - expected[d]).abs() < 1e-14,
+                "ghost {k}: {ug:?} != {expected:?}"
+            );
+            assert!(
+                (sigma[d] * us[d] + b[d] - expected[d]).abs() < 1e-14,
+                "affine of {k}"
+            );
+        }
+        if across_lid && !across_side {
+            lid_only += 1;
+            let eps = 1e-6;
+            for j in 0..2 {
+                let (mut yp, mut ym) = (xg, xg);
+                yp[j] += eps;
+                ym[j] -= eps;
+                let (fp, fm) = (image(yp), image(ym));
+                for i in 0..2 {
+                    let fd = (fp[i] - fm[i]) / (2.0 * eps);
+                    assert!(
+                        (g[k][i][j] - fd).abs() < 1e-6,
+                        "ghost {k}: ∂u_{i}/∂x_{j} = {} against {fd} by differences",
+                        g[k][i][j]
+                    );
+                }
+            }
+        }
+    }
+    assert_eq!(lid_only, 3, "one lid image for each of the three particles");
+    // inside the ramp the lid is slower than beyond it
+    assert!(u_lid(0.07) < 0.5 * lid && u_lid(0.5) == lid);
+    // a recording keeps the ramp: the spec rebuilds the same walls
+    let spec = gpm::record::schema::BoundarySpec::from(&walls);
+    assert_eq!(spec.to_walls::<2>().unwrap(), walls);
 }

@@ -938,7 +938,7 @@ fn walled_box(free_slip: bool) -> (gpm::particles::Particles<2>, NeighborList<2>
         .role
         .iter()
         .map(|r| match r {
-            Role::Ghost { walls: w, .. } => walls.velocity_affine(*w).0,
+            Role::Ghost { walls: w, source } => walls.velocity_affine(*w, &p.x[*source as usize]).0,
             _ => [1.0; 2],
         })
         .collect();

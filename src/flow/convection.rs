@@ -204,7 +204,7 @@ impl<const D: usize> Convection<D> {
     }
 
     /// Writes the convective acceleration `−N` (Euler) or `−((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)` (AB2)
-    /// of velocities `u` (ghosts already filled) into `out`, and keeps `Nⁿ` and `dt` for the
+    /// of velocities `u` (ghosts already filled) of the particles at `x` into `out`, and keeps `Nⁿ` and `dt` for the
     /// next step. AB2 falls back to Euler when there is no previous step or the particle count
     /// changed. With `least_squares` (coefficients for the configuration of `nl`, e.g.
     /// [`crate::projection::ProjectionStep::velocity_least_squares`]) the gradient is the
@@ -217,6 +217,7 @@ impl<const D: usize> Convection<D> {
         &mut self,
         nl: &NeighborList<D>,
         vol: &[f64],
+        x: &[[f64; D]],
         role: &[Role],
         boundary: &B,
         least_squares: Option<&LsOperators<D>>,
@@ -243,7 +244,7 @@ impl<const D: usize> Convection<D> {
                 grad_vec_into(nl, vol, u, &mut self.grad);
             }
             if form != ConvectionForm::Central && boundary.has_ghosts() {
-                boundary.fill_velocity_gradient(role, &mut self.grad);
+                boundary.fill_velocity_gradient(x, role, &mut self.grad);
             }
         }
         let grad = &self.grad;

@@ -24,7 +24,7 @@ pub mod convection;
 pub mod free_surface;
 pub mod shifting;
 
-use crate::boundary::{Boundary, VectorKind};
+use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
 use crate::geometry::number_density_volumes;
@@ -529,8 +529,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         if ghosts {
             let rho_g = self.params.projection.rho_g();
             let p = &mut self.particles;
-            self.boundary
-                .fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+            self.boundary.fill_velocity(&p.x, &p.role, &mut p.u);
             self.boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
         }
         (self.time, self.steps) = clock;
@@ -779,11 +778,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let accel = if self.plan.has(Stage::Convection) {
             // N = (u·∇h)u (convection::ConvectionForm); AB2: −((1 + r/2) Nⁿ − (r/2) Nⁿ⁻¹)
             if self.plan.has(Stage::Ghosts) {
-                self.boundary.fill_vector(
-                    &self.particles.role,
-                    &mut self.particles.u,
-                    VectorKind::Velocity,
-                );
+                let p = &mut self.particles;
+                self.boundary.fill_velocity(&p.x, &p.role, &mut p.u);
             }
             let ls = (self.params.projection.gradient == GradientKind::LeastSquares).then(|| {
                 let p = &self.particles;
@@ -793,6 +789,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             self.convection.accel_into(
                 &self.nl,
                 &self.particles.vol,
+                &self.particles.x,
                 &self.particles.role,
                 &self.boundary,
                 ls,

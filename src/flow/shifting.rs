@@ -214,7 +214,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         r.is_fluid() || band_moves && *r == crate::particles::Role::Dirichlet
     };
     if boundary.has_ghosts() {
-        boundary.fill_vector(&p.role, u, crate::boundary::VectorKind::Velocity);
+        boundary.fill_velocity(&p.x, &p.role, u);
     }
     let kernel = *nl.kernel();
     let h = nl.h();

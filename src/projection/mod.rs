@@ -974,7 +974,7 @@ impl<const D: usize> ProjectionStep<D> {
         let n = particles.len();
         let rho = params.rho;
         if boundary.has_ghosts() {
-            boundary.fill_vector(&particles.role, &mut particles.u, VectorKind::Velocity);
+            boundary.fill_velocity(&particles.x, &particles.role, &mut particles.u);
             boundary.fill_pressure(
                 &particles.x,
                 &particles.role,
@@ -1077,7 +1077,9 @@ impl<const D: usize> ProjectionStep<D> {
             let mut r = std::mem::take(&mut self.work_vec2);
             r.clone_from(u_star);
             let rule = |j: usize| match particles.role[j] {
-                crate::particles::Role::Ghost { walls, .. } => boundary.velocity_affine(walls),
+                crate::particles::Role::Ghost { source, walls } => {
+                    boundary.velocity_affine(walls, &particles.x[source as usize])
+                }
                 _ => ([1.0; D], [0.0; D]),
             };
             let info = self.viscous.solve_with_poisson(
@@ -1098,7 +1100,7 @@ impl<const D: usize> ProjectionStep<D> {
         if params.free_surface {
             // the band's u* is the water's below it (see stages::extend_to_band)
             if boundary.has_ghosts() {
-                boundary.fill_vector(&particles.role, u_star, VectorKind::Velocity);
+                boundary.fill_velocity(&particles.x, &particles.role, u_star);
             }
             stages::extend_to_band(nl, &particles.role, u_star);
             // a copy's extension reads u* beyond the global solves: its owner's
@@ -1204,7 +1206,7 @@ impl<const D: usize> ProjectionStep<D> {
             .extend_from_slice(&u_star[..u_star.len().min(n)]);
         self.u_star.resize(n, [0.0; D]);
         if ghosts {
-            boundary.fill_vector(role, &mut self.u_star, VectorKind::Velocity);
+            boundary.fill_velocity(&particles.x, role, &mut self.u_star);
         }
         // warm start: φⁿ⁻¹ + (Δt/Δtⁿ⁻¹)(φⁿ⁻¹ − φⁿ⁻²)
         if self.phi.len() == n && self.phi_prev.len() == n && self.dt_prev > 0.0 {
@@ -1333,7 +1335,7 @@ impl<const D: usize> ProjectionStep<D> {
             stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, &mut self.p_new);
         }
         if ghosts {
-            boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
+            boundary.fill_velocity(&particles.x, role, &mut self.u_new);
             boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
         }
         // a copy's corrected velocity reads φ beyond the global solve: its owner's (the
@@ -1342,13 +1344,13 @@ impl<const D: usize> ProjectionStep<D> {
         if let Some(h) = self.halo.as_mut() {
             sync_vector(h.as_mut(), &mut self.u_new);
             if ghosts {
-                boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
+                boundary.fill_velocity(&particles.x, role, &mut self.u_new);
             }
         }
         if params.free_surface {
             stages::extend_to_band(nl, role, &mut self.u_new);
             if ghosts {
-                boundary.fill_vector(role, &mut self.u_new, VectorKind::Velocity);
+                boundary.fill_velocity(&particles.x, role, &mut self.u_new);
             }
         }
         report.timings.correction = t.elapsed().as_secs_f64() - diag_extra;

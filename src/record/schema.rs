@@ -1102,6 +1102,10 @@ pub struct WallSpec {
     /// Free-slip (absent in files written before free-slip walls existed: no-slip).
     #[serde(default)]
     pub slip: bool,
+    /// Width of the velocity's ramp towards the walls that meet it ([`Wall::ramp`]; absent in
+    /// files written before ramped walls existed: `0`, a uniform wall velocity).
+    #[serde(default)]
+    pub ramp: f64,
 }
 
 /// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`]; a
@@ -1155,6 +1159,7 @@ impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
                         inward,
                         velocity,
                         slip,
+                        ramp,
                     } = *w;
                     WallSpec {
                         axis,
@@ -1162,6 +1167,7 @@ impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
                         inward,
                         velocity: velocity.to_vec(),
                         slip,
+                        ramp,
                     }
                 })
                 .collect(),
@@ -1215,6 +1221,7 @@ impl BoundarySpec {
                         inward: w.inward,
                         velocity: to_array("wall velocity", &w.velocity)?,
                         slip: w.slip,
+                        ramp: w.ramp,
                     });
                 }
                 if out.len() > 8 {

@@ -120,6 +120,11 @@ pub struct Cavity {
     pub steady: SteadyCriterion,
     /// Lid speed.
     pub lid: f64,
+    /// Width of the lid's corner ramp ([`crate::boundary::Wall::ramp`]), in side lengths:
+    /// the lid's speed falls smoothly to zero within `lid_ramp` of the walls that meet it
+    /// (`0`, the default: the classic cavity, a speed discontinuous at the lid corners;
+    /// `0.5`: a regularised lid, zero only at the corners).
+    pub lid_ramp: f64,
     /// Continuation of the Poisson source into the wall ghosts.
     pub source_ghosts: SourceGhosts,
 }
@@ -127,6 +132,7 @@ pub struct Cavity {
 super::config_fields!(Cavity {
     steady,
     lid,
+    lid_ramp,
     source_ghosts
 });
 
@@ -177,6 +183,7 @@ impl Default for Cavity {
         Cavity {
             steady: SteadyCriterion::default(),
             lid: 1.0,
+            lid_ramp: 0.0,
             source_ghosts: SourceGhosts::Auto,
         }
     }
@@ -195,13 +202,17 @@ impl SceneParams for Cavity {
     }
 
     fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        validate_lid_and_steady(self.lid, &self.steady)
+        validate_lid_and_steady(self.lid, self.lid_ramp, &self.steady)
     }
 }
 
-/// The keys the cavity and the cube share: a finite non-zero lid speed and a sensible
-/// steadiness criterion.
-pub fn validate_lid_and_steady(lid: f64, s: &SteadyCriterion) -> Result<(), InputError> {
+/// The keys the cavity and the cube share: a finite non-zero lid speed, a corner ramp of at
+/// most half a side and a sensible steadiness criterion.
+pub fn validate_lid_and_steady(
+    lid: f64,
+    lid_ramp: f64,
+    s: &SteadyCriterion,
+) -> Result<(), InputError> {
     let bad = |name: &'static str, value: f64, reason: &str| {
         Err(InputError::Parameter {
             name: name.into(),
@@ -211,6 +222,13 @@ pub fn validate_lid_and_steady(lid: f64, s: &SteadyCriterion) -> Result<(), Inpu
     };
     if !(lid.is_finite() && lid != 0.0) {
         return bad("lid", lid, "the lid speed must be finite and non-zero");
+    }
+    if !(0.0..=0.5).contains(&lid_ramp) {
+        return bad(
+            "lid_ramp",
+            lid_ramp,
+            "the lid's corner ramp must be between 0 and 0.5 side lengths",
+        );
     }
     if !(s.interval > 0.0 && s.interval.is_finite()) {
         return bad("steady.interval", s.interval, "must be positive and finite");
@@ -236,16 +254,24 @@ pub fn validate_lid_and_steady(lid: f64, s: &SteadyCriterion) -> Result<(), Inpu
 /// Builds the simulation: an `n × n` cell-centred lattice at rest, ghosts, neighbours, volumes.
 pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     cfg.validate()?;
-    build_box(cfg, cfg.scene.lid, cfg.scene.source_ghosts)
+    build_box(
+        cfg,
+        cfg.scene.lid,
+        cfg.scene.lid_ramp,
+        cfg.scene.source_ghosts,
+    )
 }
 
 /// The lid-driven box `[0, 1]^D` at rest on an `n^D` cell-centred lattice (volumes `Δx^D`):
 /// no-slip walls by mirror ghosts, the wall `y = 1` (axis 1) moving with speed `lid` along `x`
 /// — the square cavity for `D = 2` (the same walls as [`Walls::cavity`]), the cube for `D = 3`
-/// (`z` spanwise). Ghosts, neighbours and volumes are set up; `flow` is not validated here.
+/// (`z` spanwise), its speed ramped to zero within `lid_ramp` of the side walls
+/// ([`crate::boundary::Wall::ramp`]). Ghosts, neighbours and volumes are set up; `flow` is
+/// not validated here.
 pub fn build_box<const D: usize>(
     flow: &FlowConfig,
     lid: f64,
+    lid_ramp: f64,
     source_ghosts: SourceGhosts,
 ) -> Result<Simulation<D, Walls<D>>, Error> {
     let dx = flow.dx();
@@ -257,6 +283,7 @@ pub fn build_box<const D: usize>(
     for wall in &mut walls.walls {
         if wall.axis == 1 && wall.inward < 0.0 {
             wall.velocity[0] = lid;
+            wall.ramp = lid_ramp;
         }
     }
     let mut params = flow.flow_params(lid);

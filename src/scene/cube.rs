@@ -33,6 +33,11 @@ pub struct Cube {
     pub steady: SteadyCriterion,
     /// Lid speed.
     pub lid: f64,
+    /// Width of the lid's corner ramp ([`crate::boundary::Wall::ramp`]), in side lengths:
+    /// the lid's speed falls smoothly to zero within `lid_ramp` of the walls that meet it
+    /// (`0`, the default: the classic cavity, a speed discontinuous at the lid corners;
+    /// `0.5`: a regularised lid, zero only at the corners).
+    pub lid_ramp: f64,
     /// Continuation of the Poisson source into the wall ghosts.
     pub source_ghosts: SourceGhosts,
 }
@@ -40,6 +45,7 @@ pub struct Cube {
 super::config_fields!(Cube {
     steady,
     lid,
+    lid_ramp,
     source_ghosts
 });
 
@@ -51,6 +57,7 @@ impl Default for Cube {
         Cube {
             steady: SteadyCriterion::default(),
             lid: 1.0,
+            lid_ramp: 0.0,
             source_ghosts: SourceGhosts::Auto,
         }
     }
@@ -70,14 +77,19 @@ impl SceneParams for Cube {
     }
 
     fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        validate_lid_and_steady(self.lid, &self.steady)
+        validate_lid_and_steady(self.lid, self.lid_ramp, &self.steady)
     }
 }
 
 /// Builds the cube: an `n³` cell-centred lattice at rest, ghosts, neighbours, volumes.
 pub fn build(cfg: &CubeConfig) -> Result<Simulation<3, Walls<3>>, Error> {
     cfg.validate()?;
-    build_box(cfg, cfg.scene.lid, cfg.scene.source_ghosts)
+    build_box(
+        cfg,
+        cfg.scene.lid,
+        cfg.scene.lid_ramp,
+        cfg.scene.source_ghosts,
+    )
 }
 
 /// Largest departure of the velocity from the mirror symmetry about `z = 0.5`, in units of
