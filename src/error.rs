@@ -256,6 +256,18 @@ pub enum SolveError {
     /// Any other failure reported by the linear-algebra backend.
     #[error("linear algebra backend: {0}")]
     Backend(String),
+    /// The band values extrapolated to a surface did not settle
+    /// ([`crate::projection::ProjectionStep::project_to_surface`]).
+    #[error(
+        "the band's extrapolation to the surface did not converge: largest change {change:e} \
+         after {solves} solves (raise max_solves, or check the surface's foot points)"
+    )]
+    BandNotConverged {
+        /// Poisson solves done.
+        solves: usize,
+        /// The last change of the band values (largest, absolute).
+        change: f64,
+    },
 }
 
 /// h-connectivity (Imoto 2019, Def. 3.1) fails: some particles are cut off.

@@ -23,7 +23,7 @@ use crate::error::Error;
 use crate::geometry::number_density_volumes;
 use crate::neighbors::{NeighborConfig, NeighborList};
 use crate::pair_weights::{MomentWeights, PairWeights};
-use crate::particles::Particles;
+use crate::particles::{Particles, Role};
 use crate::projection::checks::check_spacing;
 
 /// How particle volumes are set.
@@ -81,6 +81,40 @@ pub fn prepare<const D: usize>(
     check_spacing(&nl, &particles.x)?;
     set_volumes(particles, boundary, &nl, volumes);
     Ok(nl)
+}
+
+/// The Dirichlet band's volumes continued from the fluid: each band particle with fluid
+/// neighbours within `h` (wall images of fluid particles included) takes the Shepard mean
+/// `Σ w_ij ω_j / Σ w_ij` of their volumes; the others and the fluid keep theirs, and ghosts of
+/// band particles take their source's. The number-density volume `1/Σ_j w_ij` of a particle
+/// whose support the edge of the particle set cuts (the outer rows of a band) is too large,
+/// and the band's volumes enter the fluid's Poisson rows (`2d ω_j w_ij/r_ij²`): on a
+/// Vogel-spiral disk with a band of width `h` they distort the Laplacian of the fluid
+/// particles next to the band (see [`crate::projection::surface`]).
+pub fn band_volumes_from_fluid<const D: usize>(p: &mut Particles<D>, nl: &NeighborList<D>) {
+    let new: Vec<(usize, f64)> = (0..p.len().min(nl.len()))
+        .filter(|&i| p.role[i] == Role::Dirichlet)
+        .filter_map(|i| {
+            let (mut sw, mut sv) = (0.0, 0.0);
+            for k in nl.row(i) {
+                let j = nl.indices()[k] as usize;
+                let w = nl.w()[k];
+                if w > 0.0 && crate::diagnostics::alias(&p.role, j).is_some() {
+                    sw += w;
+                    sv += w * p.vol[j];
+                }
+            }
+            (sw > 0.0).then(|| (i, sv / sw))
+        })
+        .collect();
+    for (i, v) in new {
+        p.vol[i] = v;
+    }
+    for g in 0..p.len() {
+        if let Role::Ghost { source, .. } = p.role[g] {
+            p.vol[g] = p.vol[source as usize];
+        }
+    }
 }
 
 /// [`prepare`], then the pair weights `weights` (for [`PairWeights::Moment`], computed by

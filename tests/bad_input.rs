@@ -222,6 +222,64 @@ fn projection_step_on_non_finite_input_fails_without_panicking() {
 // ---------------------------------------------------------------------------------------------
 // outside the domain, escaping
 
+/// Band values of the increment (`ProjectionStep::set_band_increment`) that do not cover the
+/// particles, or are not finite on a band particle, are named before any solve.
+#[test]
+fn bad_band_values_of_the_increment_are_named() {
+    let dx = 0.1;
+    let mut p = Particles::<2>::new();
+    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+        let role = if x[1] > 0.85 {
+            Role::Dirichlet
+        } else {
+            Role::Fluid
+        };
+        p.push(x, [0.0, 0.0], 0.0, dx * dx, role);
+    }
+    let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0);
+    let nl = gpm::setup::prepare(
+        &mut p,
+        &NoBoundary,
+        config,
+        gpm::setup::VolumeRule::NumberDensity,
+    )
+    .unwrap();
+    let params = ProjectionParams::<2>::new(0.0);
+    let band = (0..p.len())
+        .find(|&i| p.role[i] == Role::Dirichlet)
+        .unwrap();
+    let u_star = p.u.clone();
+    let mut step = ProjectionStep::new();
+    step.set_band_increment(vec![0.0; 3]);
+    let e = input_err(step.project(&mut p, &nl, &NoBoundary, &params, 0.01, &u_star));
+    assert!(
+        matches!(
+            e,
+            InputError::LengthMismatch {
+                field: "band increment",
+                len: 3,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let mut g = vec![0.0; p.len()];
+    g[band] = f64::NAN;
+    step.set_band_increment(g);
+    let e = input_err(step.project(&mut p, &nl, &NoBoundary, &params, 0.01, &u_star));
+    assert_eq!(
+        e,
+        InputError::NonFinite {
+            field: "band increment",
+            particle: band
+        }
+    );
+    assert_names(
+        &e.to_string(),
+        &["band increment", &format!("particle {band}")],
+    );
+}
+
 #[test]
 fn particles_outside_the_domain_are_named() {
     for (pos, wall) in [

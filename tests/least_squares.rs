@@ -107,6 +107,36 @@ fn plain_variant_is_exact_for_quadratics_away_from_walls() {
     assert!(checked > n / 3, "{checked} rows checked");
 }
 
+/// `n` particles on Vogel's spiral in the unit disk (volumes `π/n`), the outer ring `r > 1 − h`
+/// the Dirichlet band (`h` = 3 mean spacings), velocities `field(x)`; and `h`.
+fn spiral_disk(n: usize, field: impl Fn([f64; 2]) -> [f64; 2]) -> (Particles<2>, f64) {
+    let dx = (std::f64::consts::PI / n as f64).sqrt();
+    let h = 3.0 * dx;
+    let mut p = Particles::<2>::new();
+    for x in gpm::geometry::vogel_disk(n, [0.0, 0.0], 1.0) {
+        let role = if x[0].hypot(x[1]) > 1.0 - h {
+            Role::Dirichlet
+        } else {
+            Role::Fluid
+        };
+        p.push(x, field(x), 0.0, dx * dx, role);
+    }
+    (p, h)
+}
+
+/// The GPM projection parameters (non-incremental, no floating component) and the
+/// consistent set's.
+fn disk_params() -> (
+    gpm::projection::ProjectionParams<2>,
+    gpm::projection::ProjectionParams<2>,
+) {
+    let mut gpm = gpm::projection::ProjectionParams::<2>::new(0.0);
+    gpm.scheme = gpm::projection::Scheme::NonIncremental;
+    gpm.allowed_floating = 0;
+    let consistent = gpm.with_consistent_operators();
+    (gpm, consistent)
+}
+
 /// One projection on a Vogel-spiral disk (nowhere a lattice) with a Dirichlet band of width
 /// `h`: the consistent set leaves the rigid rotation `(−y, x)` as it is (its least-squares
 /// divergence is zero to round-off, the band's velocities included), while the GPM pair changes
@@ -115,25 +145,10 @@ fn plain_variant_is_exact_for_quadratics_away_from_walls() {
 #[test]
 fn consistent_projection_keeps_a_rigid_rotation_on_a_spiral_disk() {
     use gpm::boundary::NoBoundary;
-    use gpm::geometry::vogel_disk;
-    use gpm::projection::{ProjectionParams, ProjectionStep, Scheme};
-    let n = 1500;
-    let dx = (std::f64::consts::PI / n as f64).sqrt();
-    let h = 3.0 * dx;
-    let mut gpm = ProjectionParams::<2>::new(0.0);
-    gpm.scheme = Scheme::NonIncremental;
-    gpm.allowed_floating = 0;
-    let consistent = gpm.with_consistent_operators();
+    use gpm::projection::{ProjectionParams, ProjectionStep};
+    let (gpm, consistent) = disk_params();
     let change = |params: &ProjectionParams<2>| {
-        let mut p = Particles::<2>::new();
-        for x in vogel_disk(n, [0.0, 0.0], 1.0) {
-            let role = if x[0].hypot(x[1]) > 1.0 - h {
-                Role::Dirichlet
-            } else {
-                Role::Fluid
-            };
-            p.push(x, [-x[1], x[0]], 0.0, dx * dx, role);
-        }
+        let (mut p, h) = spiral_disk(1500, |x| [-x[1], x[0]]);
         let config = NeighborConfig::new(Weight::WendlandC2, h, 0.0);
         let nl = prepare(&mut p, &NoBoundary, config, VolumeRule::NumberDensity).unwrap();
         let u_star = p.u.clone();
@@ -149,6 +164,134 @@ fn consistent_projection_keeps_a_rigid_rotation_on_a_spiral_disk() {
     let g = change(&gpm);
     assert!(c < 1e-9, "consistent set changed the rotation by {c}");
     assert!(g > 1e-2, "GPM set changed it by only {g}");
+}
+
+/// The spiral disk's Poisson problem with the band's increment continued to vanish on the rim
+/// `r = 1` (`gpm::projection::surface`) and the band's volumes continued from the fluid
+/// (`setup::band_volumes_from_fluid`), consistent operators, n = 4 000 (issue 13's set-up):
+/// projecting the source flow `(x, y)` leaves a swirl of at most 10⁻³ of the rotation's
+/// largest speed (the paper's band `φ = 0`: several per cent), and the rotation `(−y, x)` is
+/// kept to 10⁻³. Exact answers: the source flow is `∇((r² − 1)/2)` and projects to zero, with
+/// no azimuthal part anywhere; the rotation is divergence-free.
+#[test]
+fn a_band_extrapolated_to_the_rim_removes_the_spiral_disks_swirl() {
+    use gpm::boundary::NoBoundary;
+    use gpm::projection::surface::SurfaceBand;
+    use gpm::projection::ProjectionStep;
+    use gpm::setup::band_volumes_from_fluid;
+    let (_, params) = disk_params();
+    // (largest azimuthal speed left by projecting (x, y), largest change of (−y, x)), over
+    // the largest rotation speed among the fluid particles; and the solves of the source flow
+    let run = |surface: bool| {
+        let mut out = [0.0f64; 2];
+        let mut solves = 0;
+        for (f, field) in [|x: [f64; 2]| x, |x: [f64; 2]| [-x[1], x[0]]]
+            .into_iter()
+            .enumerate()
+        {
+            let (mut p, h) = spiral_disk(4000, field);
+            let config = NeighborConfig::new(Weight::WendlandC2, h, 0.0);
+            let nl = prepare(&mut p, &NoBoundary, config, VolumeRule::NumberDensity).unwrap();
+            let u_star = p.u.clone();
+            let mut step = ProjectionStep::new();
+            if surface {
+                band_volumes_from_fluid(&mut p, &nl);
+                let fit_config = NeighborConfig::new(Weight::WendlandC2, 2.0 * h, 0.0);
+                let fit = NeighborList::build(fit_config, &p.x).unwrap();
+                let foot = |_: usize, x: &[f64; 2]| {
+                    let r = x[0].hypot(x[1]);
+                    Some([x[0] / r, x[1] / r])
+                };
+                let band = SurfaceBand {
+                    fit: &fit,
+                    foot: &foot,
+                    tol: 1e-11,
+                    max_solves: 60,
+                };
+                let (_, k) = step
+                    .project_to_surface(&mut p, &nl, &NoBoundary, &params, 1.0, &u_star, &band)
+                    .unwrap();
+                if f == 0 {
+                    solves = k;
+                }
+            } else {
+                step.project(&mut p, &nl, &NoBoundary, &params, 1.0, &u_star)
+                    .unwrap();
+            }
+            let fluid: Vec<usize> = (0..p.len()).filter(|&i| p.role[i] == Role::Fluid).collect();
+            let vmax = fluid
+                .iter()
+                .map(|&i| p.x[i][0].hypot(p.x[i][1]))
+                .fold(0.0, f64::max);
+            out[f] = fluid
+                .iter()
+                .map(|&i| {
+                    let [x, y] = p.x[i];
+                    let u = p.u[i];
+                    if f == 0 {
+                        (-y * u[0] + x * u[1]).abs() / x.hypot(y).max(1e-300)
+                    } else {
+                        (u[0] + y).hypot(u[1] - x)
+                    }
+                })
+                .fold(0.0, f64::max)
+                / vmax;
+        }
+        (out, solves)
+    };
+    let ([swirl, change], solves) = run(true);
+    assert!(swirl <= 1e-3, "swirl {swirl:e} of the rotation's speed");
+    assert!(change <= 1e-3, "rotation changed by {change:e}");
+    assert!((2..60).contains(&solves), "{solves} solves");
+    let ([swirl0, _], _) = run(false);
+    assert!(swirl0 > 1e-2, "the paper's band leaves only {swirl0:e}");
+}
+
+/// The band's extrapolation is exact for a quadratic that vanishes on the surface, in 3D: on a
+/// lattice below the plane `z = 1` with the top rows as the band, `φ = (z − 1)(1 + x − 2y + z)`
+/// on the fluid gives `g_b = φ(x_b)` on every band particle whose fit reaches fluid on all
+/// sides (away from the box's sides, where no wall images fill the corner in).
+#[test]
+fn band_extrapolation_is_exact_for_a_quadratic_vanishing_on_the_surface() {
+    use gpm::projection::surface::extrapolate_to_surface;
+    let dx = 0.1;
+    let phi_of = |x: &[f64; 3]| (x[2] - 1.0) * (1.0 + x[0] - 2.0 * x[1] + x[2]);
+    let mut p = Particles::<3>::new();
+    for x in lattice([0.0; 3], [1.0; 3], dx) {
+        // the band: the rows z = 0.85, 0.95
+        let role = if x[2] > 0.8 {
+            Role::Dirichlet
+        } else {
+            Role::Fluid
+        };
+        p.push(x, [0.0; 3], 0.0, dx * dx * dx, role);
+    }
+    let phi: Vec<f64> =
+        p.x.iter()
+            .zip(&p.role)
+            .map(|(x, r)| if r.is_fluid() { phi_of(x) } else { 0.0 })
+            .collect();
+    // 5 spacings: three layers of fluid within reach of the top band row
+    let fit =
+        NeighborList::build(NeighborConfig::new(Weight::WendlandC2, 5.0 * dx, 0.0), &p.x).unwrap();
+    let foot = |_: usize, x: &[f64; 3]| Some([x[0], x[1], 1.0]);
+    let g = extrapolate_to_surface(&p, &phi, &fit, &foot);
+    let mut checked = 0;
+    for (i, (x, gi)) in p.x.iter().zip(&g).enumerate() {
+        let inner = x[..2].iter().all(|&c| (0.25..=0.75).contains(&c));
+        if p.role[i] == Role::Dirichlet && inner {
+            let want = phi_of(x);
+            assert!(
+                (gi - want).abs() < 1e-10,
+                "particle {i} at {x:?}: {gi} against {want}"
+            );
+            checked += 1;
+        }
+    }
+    assert_eq!(
+        checked, 72,
+        "two band layers of 6 × 6 away from the box's sides"
+    );
 }
 
 /// The wall variant on a lattice in a closed 3D box (many pairs exactly at `r = h`, where

@@ -36,6 +36,7 @@
 
 pub mod checks;
 pub mod stages;
+pub mod surface;
 
 use crate::boundary::{Boundary, VectorKind};
 use crate::consistent::{GradientKind, GradientOperator, LaplacianKind};
@@ -45,7 +46,7 @@ use crate::diagnostics::{
 };
 use crate::error::{Error, InputError};
 use crate::neighbors::NeighborList;
-use crate::particles::Particles;
+use crate::particles::{Particles, Role};
 use crate::poisson::{HelmholtzSolver, PoissonSolver, SolveInfo, SolveParams};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -579,6 +580,9 @@ pub struct ProjectionStep<const D: usize> {
     /// ([`Self::pressure_gradient_into`]) just before [`predict`](Self::predict), which then
     /// uses it rather than computing it again (valid for that one call: the flag).
     pressure_gradient_given: (Vec<[f64; D]>, bool),
+    /// Dirichlet values of the increment on the band ([`Self::set_band_increment`]; empty:
+    /// zero).
+    band_phi: Vec<f64>,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -623,6 +627,56 @@ impl<const D: usize> ProjectionStep<D> {
         self.phi = phi;
         self.phi_prev = phi_prev;
         self.dt_prev = dt_prev;
+    }
+
+    /// Dirichlet values `g` of the increment `φ` on the band for the following projections
+    /// (indexed like the particles; only the entries of Dirichlet particles are read, a ghost
+    /// of one takes its source's): the Poisson problem becomes `−Δh φ = D f` on the fluid with
+    /// `φ = g` on the band — the band's pairs move `Σ_band 2d ω_j w_h(r_ij)/r_ij² g_j` to
+    /// the right side of row `i` — and the correction's gradient reads `g` there. An empty
+    /// vector (the default) is the paper's homogeneous problem `φ = 0`. Values that continue
+    /// the fluid's `φ` smoothly into the band (e.g. extrapolated to a surface beyond it)
+    /// remove the kink that `φ = 0` on a band of finite width leaves at its inner edge. Not
+    /// supported with a [`HaloSync`] (a decomposed run): [`project`](Self::project) rejects it.
+    pub fn set_band_increment(&mut self, values: Vec<f64>) {
+        self.band_phi = values;
+    }
+
+    /// The band's Dirichlet values of the increment ([`Self::set_band_increment`]; empty:
+    /// zero).
+    pub fn band_increment(&self) -> &[f64] {
+        &self.band_phi
+    }
+
+    /// Rejects band values that do not cover the particles, are not finite on the band, or
+    /// come with a halo.
+    fn check_band_increment(&self, role: &[Role]) -> Result<(), InputError> {
+        let g = &self.band_phi;
+        if g.is_empty() {
+            return Ok(());
+        }
+        let first = crate::boundary::first_ghost(role);
+        if g.len() < first {
+            return Err(InputError::LengthMismatch {
+                field: "band increment",
+                len: g.len(),
+                expected: first,
+            });
+        }
+        if self.halo.is_some() {
+            return Err(InputError::parameter(
+                "band_increment",
+                g.len() as f64,
+                "inhomogeneous band values are not supported in a decomposed run",
+            ));
+        }
+        match (0..first).find(|&i| role[i] == Role::Dirichlet && !g[i].is_finite()) {
+            Some(i) => Err(InputError::NonFinite {
+                field: "band increment",
+                particle: i,
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Sets the pressure of every particle and the held increment `φ` to zero: after a one-off
@@ -1182,6 +1236,7 @@ impl<const D: usize> ProjectionStep<D> {
         checks::check_configuration(particles, nl, boundary, checks::Reads { velocity: false })?;
         checks::check_field("u_star", u_star, &particles.role, true)?;
         let n = particles.len();
+        self.check_band_increment(&particles.role)?;
         let mut report = StepReport {
             dt,
             ..Default::default()
@@ -1268,9 +1323,13 @@ impl<const D: usize> ProjectionStep<D> {
         let f_l2 = norm_l2_vec(vol, f, role, Region::Omega);
         report.timings.source = t.elapsed().as_secs_f64();
 
-        // 4. Poisson solve for the increment
+        // 4. Poisson solve for the increment (φ = g on the band: its pairs move to the right side)
         let t = Instant::now();
         self.phi.resize(n, 0.0);
+        let inhomogeneous = !self.band_phi.is_empty();
+        if inhomogeneous {
+            stages::add_band_values(nl, vol, role, &self.band_phi, &mut self.rhs);
+        }
         report.solve = self.solver.solve(
             nl,
             vol,
@@ -1280,6 +1339,9 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.phi,
             &params.solve,
         )?;
+        if inhomogeneous {
+            stages::set_band_values(role, &self.band_phi, &mut self.phi);
+        }
         report.timings.solve = t.elapsed().as_secs_f64();
 
         // 5. correction and pressure update, into scratch (u and p untouched until it is checked)

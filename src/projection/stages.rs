@@ -163,6 +163,53 @@ pub fn correct<const D: usize>(
     }
 }
 
+/// The band's Dirichlet values `g` of the increment moved to the right side of the Poisson
+/// rows ([`super::ProjectionStep::set_band_increment`]): `rhs_i += Σ_{j ∈ band} 2d ω_j
+/// w_h(r_ij)/r_ij² g_j` for every fluid `i` (the matrix row is `ω_i` times that of `−Δh`; a
+/// ghost of a band particle carries its source's value).
+pub fn add_band_values<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    role: &[Role],
+    g: &[f64],
+    rhs: &mut [f64],
+) {
+    let two_d = 2.0 * D as f64;
+    rhs.par_iter_mut().enumerate().for_each(|(i, r)| {
+        if !role[i].is_fluid() {
+            return;
+        }
+        let mut add = 0.0;
+        for k in nl.row(i) {
+            let j = nl.indices()[k] as usize;
+            if let Some(b) = band_source(role, j) {
+                add += two_d * vol[j] * nl.wr2()[k] * g[b];
+            }
+        }
+        *r += add;
+    });
+}
+
+/// Writes the band's Dirichlet values `g` into `φ` (band particles and their ghosts).
+pub fn set_band_values(role: &[Role], g: &[f64], phi: &mut [f64]) {
+    for (i, v) in phi.iter_mut().enumerate() {
+        if let Some(b) = band_source(role, i) {
+            *v = g[b];
+        }
+    }
+}
+
+/// The band particle a particle stands for: itself, or a ghost's band source.
+fn band_source(role: &[Role], j: usize) -> Option<usize> {
+    match role[j] {
+        Role::Dirichlet => Some(j),
+        Role::Ghost { source, .. } if role[source as usize] == Role::Dirichlet => {
+            Some(source as usize)
+        }
+        _ => None,
+    }
+}
+
 /// A free surface's velocity: each band particle takes the Shepard mean `Σ w_ij u_j / Σ w_ij`
 /// of the corrected velocities of its fluid neighbours within `h` (wall images of fluid
 /// particles included, with their no-slip values); a band particle without one — a splash —
