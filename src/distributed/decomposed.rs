@@ -764,7 +764,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
     /// run was made from, every rank's). On `root` the real particles' positions,
     /// velocities, pressures, volumes and band are the ranks' and, for moving particles, the
     /// ghosts and neighbours are brought to the new positions
-    /// ([`Simulation::load_real_state`]); on every rank the clock is the run's. Costs a
+    /// (`Simulation::load_real_state`); on every rank the clock is the run's. Costs a
     /// message of `8 (4 + 2d)` bytes per own particle to `root`, and on `root` a neighbour
     /// update of the whole scene per call.
     pub fn gather_into(&mut self, view: &mut Simulation<D, B>, root: usize) -> Result<(), Error> {
