@@ -95,16 +95,8 @@ pub fn band_volumes_from_fluid<const D: usize>(p: &mut Particles<D>, nl: &Neighb
     let new: Vec<(usize, f64)> = (0..p.len().min(nl.len()))
         .filter(|&i| p.role[i] == Role::Dirichlet)
         .filter_map(|i| {
-            let (mut sw, mut sv) = (0.0, 0.0);
-            for k in nl.row(i) {
-                let j = nl.indices()[k] as usize;
-                let w = nl.w()[k];
-                if w > 0.0 && crate::diagnostics::alias(&p.role, j).is_some() {
-                    sw += w;
-                    sv += w * p.vol[j];
-                }
-            }
-            (sw > 0.0).then(|| (i, sv / sw))
+            crate::projection::stages::fluid_shepard(nl, &p.role, i, |j| [p.vol[j]])
+                .map(|[v]| (i, v))
         })
         .collect();
     for (i, v) in new {

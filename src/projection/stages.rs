@@ -221,24 +221,35 @@ pub fn extend_to_band<const D: usize>(nl: &NeighborList<D>, role: &[Role], u: &m
     let ext: Vec<(usize, [f64; D])> = (0..role.len())
         .into_par_iter()
         .filter(|&i| role[i] == Role::Dirichlet)
-        .filter_map(|i| {
-            let (mut sw, mut su) = (0.0, [0.0; D]);
-            for k in nl.row(i) {
-                let j = nl.indices()[k] as usize;
-                let w = nl.w()[k];
-                if w > 0.0 && crate::diagnostics::alias(role, j).is_some() {
-                    sw += w;
-                    for a in 0..D {
-                        su[a] += w * u[j][a];
-                    }
-                }
-            }
-            (sw > 0.0).then(|| (i, su.map(|v| v / sw)))
-        })
+        .filter_map(|i| fluid_shepard(nl, role, i, |j| u[j]).map(|v| (i, v)))
         .collect();
     for (i, v) in ext {
         u[i] = v;
     }
+}
+
+/// The Shepard mean `Σ w_ij v_j / Σ w_ij` of `value` over the fluid neighbours of particle `i`
+/// within `h` (wall images of fluid particles included, with their own values); `None`
+/// without one.
+pub(crate) fn fluid_shepard<const D: usize, const K: usize>(
+    nl: &NeighborList<D>,
+    role: &[Role],
+    i: usize,
+    value: impl Fn(usize) -> [f64; K],
+) -> Option<[f64; K]> {
+    let (mut sw, mut sv) = (0.0, [0.0; K]);
+    for k in nl.row(i) {
+        let j = nl.indices()[k] as usize;
+        let w = nl.w()[k];
+        if w > 0.0 && crate::diagnostics::alias(role, j).is_some() {
+            sw += w;
+            let v = value(j);
+            for a in 0..K {
+                sv[a] += w * v[a];
+            }
+        }
+    }
+    (sw > 0.0).then(|| sv.map(|v| v / sw))
 }
 
 /// `‖D v‖_ℓ2(Ω)` measured as the source sees a velocity: `v` zeroed on the Dirichlet band, its
