@@ -117,6 +117,10 @@ struct Args {
     /// `tools/peer/errors.py`.
     #[arg(long)]
     particles_csv: bool,
+    /// Warm start: the velocity and pressure of another run's OUT/particles.csv (written with
+    /// --particles-csv, any resolution), sampled at this run's particles before the first step.
+    #[arg(long)]
+    initial: Option<PathBuf>,
 }
 
 fn config(a: &Args) -> CavityConfig {
@@ -138,6 +142,7 @@ fn config(a: &Args) -> CavityConfig {
             c.laplacian = a.laplacian;
         }
         c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+        c.initial = a.initial.clone();
     });
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {

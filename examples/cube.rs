@@ -45,6 +45,14 @@ struct Args {
     /// Record particle snapshots (every 10 steps) beside the per-step diagnostics.
     #[arg(long)]
     full: bool,
+    /// Also write the final fluid particles into OUT/particles.csv (`x,y,z,u,v,w,p`), e.g. the
+    /// warm start of a finer run (--initial).
+    #[arg(long)]
+    particles_csv: bool,
+    /// Warm start: the velocity and pressure of another run's OUT/particles.csv (written with
+    /// --particles-csv, any resolution), sampled at this run's particles before the first step.
+    #[arg(long)]
+    initial: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -59,8 +67,11 @@ fn main() -> Result<()> {
     if let Some(t) = a.t_end {
         cfg.t_end = t;
     }
+    if a.initial.is_some() {
+        cfg.initial = a.initial;
+    }
     let out = a
         .out
         .unwrap_or_else(|| PathBuf::from(format!("results/cube_re{}_n{}", cfg.re, cfg.n)));
-    common::run_into(&cfg, &out, a.full)
+    common::run_into(&cfg, &out, a.full, a.particles_csv)
 }

@@ -33,5 +33,5 @@ fn main() -> Result<()> {
     let cfg = a
         .run
         .config::<DamBreak>(|c, t| t / (2.0 * c.scene.gravity).sqrt())?;
-    common::run_into(&cfg, &a.run.out::<DamBreak>(), true)
+    common::run_into(&cfg, &a.run.out::<DamBreak>(), true, false)
 }

@@ -43,5 +43,5 @@ fn main() -> Result<()> {
     if let Some(b) = a.depth {
         cfg.scene.depth = b;
     }
-    common::run_into(&cfg, &a.run.out::<DamBreak3d>(), true)
+    common::run_into(&cfg, &a.run.out::<DamBreak3d>(), true, false)
 }

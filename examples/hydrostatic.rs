@@ -27,5 +27,5 @@ struct Args {
 fn main() -> Result<()> {
     let a = Args::parse();
     let cfg = a.run.config::<Hydrostatic>(|_, t| t)?;
-    common::run_into(&cfg, &a.run.out::<Hydrostatic>(), false)
+    common::run_into(&cfg, &a.run.out::<Hydrostatic>(), false, false)
 }

@@ -71,11 +71,13 @@ pub fn load<S: gpm::scene::SceneParams>(path: Option<&Path>) -> Result<SceneConf
 }
 
 /// Runs `cfg` recording every step (`full`: with particle snapshots) into `out/run.mcap` and
-/// writes the scene's files into `out`; prints the summary.
+/// writes the scene's files into `out` (`particles_csv`: also `particles.csv`, the final fluid
+/// particles, [`gpm::particles::Particles::fluid_csv`]); prints the summary.
 pub fn run_into<const D: usize, S: Scene<D>>(
     cfg: &SceneConfig<S>,
     out: &Path,
     full: bool,
+    particles_csv: bool,
 ) -> Result<()> {
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let level = if full {
@@ -106,6 +108,11 @@ pub fn run_into<const D: usize, S: Scene<D>>(
     run.write_tables(out, cfg)
         .with_context(|| format!("writing into {}", out.display()))?;
     run.write_plots(out, cfg)?;
+    if particles_csv {
+        let path = out.join("particles.csv");
+        std::fs::write(&path, run.sim.particles.fluid_csv())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     println!("{}", serde_json::to_string_pretty(&run.summary(cfg))?);
     Ok(())
 }

@@ -24,6 +24,7 @@ pub mod hydrostatic;
 pub mod manufactured;
 pub mod ranks;
 pub mod taylor_green;
+pub mod warm_start;
 
 use crate::boundary::Boundary;
 use crate::consistent::{GradientKind, LaplacianKind};
@@ -117,6 +118,12 @@ pub struct FlowConfig {
     /// Policy for fluid cut off from the rest ([`Disconnected`]): `null` (default) is `float`
     /// for Lagrangian runs, where particles can leave the bulk, and `fail` for fixed ones.
     pub disconnected: Option<Disconnected>,
+    /// A warm start: the path of another run's final fluid particles (the CSV of
+    /// [`crate::particles::Particles::fluid_csv`], the examples' `--particles-csv`), whose
+    /// velocity and pressure are sampled at this run's fluid particles before the first step
+    /// ([`warm_start`]; e.g. a coarse run's steady state as the start of a fine one). `null`
+    /// (default): the scene's own initial state.
+    pub initial: Option<std::path::PathBuf>,
 }
 
 impl Default for FlowConfig {
@@ -145,6 +152,7 @@ impl Default for FlowConfig {
             limits: TimeStepLimits::default(),
             solve: SolveParams::default(),
             disconnected: None,
+            initial: None,
         }
     }
 }
@@ -399,7 +407,8 @@ config_fields!(FlowConfig {
     operators,
     limits,
     solve,
-    disconnected
+    disconnected,
+    initial
 });
 
 /// A scene's own configuration keys (beside the shared [`FlowConfig`]); independent of the
@@ -1177,6 +1186,10 @@ pub fn run_scene_with<const D: usize, S: Scene<D>>(
 ) -> Result<SceneRun<D, S>, Error> {
     let started = Instant::now();
     let mut sim = S::build(cfg)?;
+    if let Some(path) = &cfg.initial {
+        let snap = warm_start::FluidSnapshot::read(path)?;
+        warm_start::apply(&mut sim, &snap)?;
+    }
     setup(&mut sim);
     let mut state = S::start(cfg, &sim);
     let mut end = RunEnd::EndTime;
