@@ -187,3 +187,80 @@ fn bad_warm_start_files_are_named() {
     let msg = e.expect("a missing file fails the run").to_string();
     assert!(msg.contains("start.csv"), "{msg}");
 }
+
+#[test]
+#[cfg(feature = "cli")]
+fn gpm_run_writes_the_particles_and_starts_from_them() {
+    let dir = std::env::temp_dir().join(format!("gpm_warm_start_cli_{}", std::process::id()));
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_gpm"))
+            .args(["run", "cavity", "--quiet", "--t-end", "0.5"])
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let coarse = dir.join("coarse");
+    let out = run(&[
+        "--n",
+        "10",
+        "--particles-csv",
+        "--out",
+        coarse.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = coarse.join("particles.csv");
+    let snap = FluidSnapshot::<2>::read(&csv).unwrap();
+    assert_eq!(snap.x.len(), 100);
+    assert!(
+        snap.u.iter().any(|u| u[0] != 0.0),
+        "the lid moved the fluid"
+    );
+    let fine = dir.join("fine");
+    let out = run(&[
+        "--n",
+        "14",
+        "--initial",
+        csv.to_str().unwrap(),
+        "--out",
+        fine.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // the start took effect: the profiles differ from a cold start's (which moved half as long)
+    let cold = run(&["--n", "14", "--out", dir.join("cold").to_str().unwrap()]);
+    assert!(cold.status.success());
+    let profile = |o: &std::process::Output| -> Vec<f64> {
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        serde_json::from_value(v["result"]["u"].clone()).unwrap()
+    };
+    let (w, c) = (profile(&out), profile(&cold));
+    assert_eq!(w.len(), c.len());
+    let gap = w
+        .iter()
+        .zip(&c)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(gap > 1e-2, "warm and cold profiles differ by {gap:e} only");
+    let out = run(&[
+        "--n",
+        "14",
+        "--initial",
+        "/nonexistent/p.csv",
+        "--out",
+        fine.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("initial") && err.contains("/nonexistent/p.csv"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -221,6 +221,14 @@ struct RunArgs {
     /// count exceeds 10⁶.
     #[arg(long)]
     force: bool,
+    /// Warm start: the velocity and pressure of another run's particles.csv (any resolution),
+    /// sampled at this run's particles before the first step (the key `initial`).
+    #[arg(long)]
+    initial: Option<PathBuf>,
+    /// Also write the final fluid particles into OUT/particles.csv (`x,y[,z],u,v[,w],p`), e.g.
+    /// the warm start of a finer run.
+    #[arg(long)]
+    particles_csv: bool,
 }
 
 #[derive(Args, Debug)]
@@ -453,6 +461,9 @@ impl SceneVisitor for RunScene {
         override_opt(&mut cfg.weight, a.weight);
         override_opt(&mut cfg.h_over_dx, a.h_ratio);
         override_opt(&mut cfg.motion, a.motion);
+        if a.initial.is_some() {
+            cfg.initial = a.initial.clone();
+        }
         cfg.validate()
             .with_context(|| format!("invalid {name} configuration"))?;
         check_estimates::<D, S>(&cfg, a.force)?;
@@ -530,6 +541,11 @@ impl SceneVisitor for RunScene {
                         _ => errln!("interrupted by {} after step {step}", signals::name(sig)),
                     }
                     return Ok(ExitCode::from((128 + sig).clamp(0, 255) as u8));
+                }
+                if a.particles_csv {
+                    let csv = a.out.join("particles.csv");
+                    std::fs::write(&csv, run.sim.particles.fluid_csv())
+                        .with_context(|| format!("writing {}", csv.display()))?;
                 }
                 let mut out =
                     serde_json::json!({ "scene": name, "result": run.result, "record": record });
