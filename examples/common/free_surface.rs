@@ -6,6 +6,8 @@ use gpm::record::{RecordLevel, RecorderOptions};
 use gpm::scene::{run_recorded, Scene, SceneConfig};
 use std::ops::ControlFlow;
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 /// The command line both examples share.
 #[derive(clap::Args, Debug)]
@@ -72,7 +74,9 @@ pub fn load<S: gpm::scene::SceneParams>(path: Option<&Path>) -> Result<SceneConf
 
 /// Runs `cfg` recording every step (`full`: with particle snapshots) into `out/run.mcap` and
 /// writes the scene's files into `out` (`particles_csv`: also `particles.csv`, the final fluid
-/// particles, [`gpm::particles::Particles::fluid_csv`]); prints the summary.
+/// particles, [`gpm::particles::Particles::fluid_csv`]); prints the summary. Ctrl-C or SIGTERM
+/// stops the run after the current step and still writes the files, of the state then (a long
+/// run stopped early keeps its profiles and its particles, e.g. to warm-start another).
 pub fn run_into<const D: usize, S: Scene<D>>(
     cfg: &SceneConfig<S>,
     out: &Path,
@@ -85,13 +89,25 @@ pub fn run_into<const D: usize, S: Scene<D>>(
     } else {
         RecordLevel::Diagnostics
     };
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst))
+            .context("installing the Ctrl-C handler")?;
+    }
     let done = run_recorded(
         cfg,
         &out.join("run.mcap"),
         RecorderOptions::new(level, 10),
         &cfg.record_header(),
         |_| {},
-        |_, _| Ok(ControlFlow::Continue(())),
+        |_, _| {
+            Ok(if stop.load(Ordering::SeqCst) {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            })
+        },
     )?;
     let record = done.record.context("finishing the recording")?;
     let run = done.run.with_context(|| {
@@ -105,6 +121,12 @@ pub fn run_into<const D: usize, S: Scene<D>>(
                 .map_or("the recording".into(), |p| p.display().to_string())
         )
     })?;
+    if let Some(step) = run.interrupted() {
+        eprintln!(
+            "interrupted after step {step}: the files in {} describe the state then",
+            out.display()
+        );
+    }
     run.write_tables(out, cfg)
         .with_context(|| format!("writing into {}", out.display()))?;
     run.write_plots(out, cfg)?;
