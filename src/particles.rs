@@ -101,17 +101,25 @@ impl<const D: usize> Particles<D> {
         self.role.iter().filter(|r| r.is_fluid()).count()
     }
 
+    /// The columns of [`Self::fluid_csv`]: `x, y, u, v, p` in 2D, `x, y, z, u, v, w, p` in 3D.
+    pub fn fluid_csv_columns() -> Vec<&'static str> {
+        const AXES: [&str; 3] = ["x", "y", "z"];
+        const VELS: [&str; 3] = ["u", "v", "w"];
+        AXES[..D]
+            .iter()
+            .chain(&VELS[..D])
+            .copied()
+            .chain(["p"])
+            .collect()
+    }
+
     /// The fluid particles as CSV text: a header line (`x,y,u,v,p` in 2D, `x,y,z,u,v,w,p` in
     /// 3D), then one row per fluid particle in index order, numbers in their shortest exact
     /// form (what the examples' `--particles-csv` writes, for scripts outside gpm).
     pub fn fluid_csv(&self) -> String {
         use std::fmt::Write;
-        const AXES: [&str; 3] = ["x", "y", "z"];
-        const VELS: [&str; 3] = ["u", "v", "w"];
-        let mut text = AXES[..D].join(",");
-        text.push(',');
-        text.push_str(&VELS[..D].join(","));
-        text.push_str(",p\n");
+        let mut text = Self::fluid_csv_columns().join(",");
+        text.push('\n');
         for i in (0..self.len()).filter(|&i| self.role[i].is_fluid()) {
             for v in self.x[i].iter().chain(&self.u[i]) {
                 let _ = write!(text, "{v},");

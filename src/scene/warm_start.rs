@@ -9,9 +9,9 @@
 //! distance of the file's particles) — one-sided at the walls, where the file has no ghosts; the
 //! radius is wide enough for the quadratic fit at a lattice's corner (about 16 particles in a
 //! quarter disk in 2D, 48 in an eighth of a ball in 3D, against the 12 and 20 it needs), so a
-//! quadratic field is carried exactly everywhere. Everything else starts as in a cold start (the ghosts take their values
-//! from the boundary's rules at the first step; the explicit terms' history is empty, so the
-//! first step is Euler's).
+//! quadratic field is carried exactly everywhere. Everything else starts as in a cold start
+//! (the ghosts take their values from the boundary's rules at the first step; the explicit
+//! terms' history is empty, so the first step is Euler's).
 //!
 //! This is grid sequencing: a steady state reached at a coarse resolution carried to a fine one,
 //! which then only has to settle the difference (the steady state of the fine run does not
@@ -52,14 +52,7 @@ impl<const D: usize> FluidSnapshot<D> {
     /// errors (a path). Fails naming the line on a header for another dimension, a row with the
     /// wrong number of fields, a field that is not a finite number, and on a file without rows.
     pub fn from_csv(text: &str, source: &str) -> Result<Self, InputError> {
-        const AXES: [&str; 3] = ["x", "y", "z"];
-        const VELS: [&str; 3] = ["u", "v", "w"];
-        let want: Vec<&str> = AXES[..D]
-            .iter()
-            .chain(&VELS[..D])
-            .copied()
-            .chain(["p"])
-            .collect();
+        let want = crate::particles::Particles::<D>::fluid_csv_columns();
         let mut lines = text
             .lines()
             .enumerate()
