@@ -65,10 +65,13 @@ struct Args {
     /// Implicit weight of the viscous term (0.5 Crank–Nicolson, 0 explicit).
     #[arg(long, default_value_t = 0.5)]
     theta: f64,
-    /// Lagrangian Fickian shifting coefficient A, added to the default pair repulsion (0
-    /// disables shifting).
+    /// Lagrangian Fickian shifting coefficient A, added to the cavity's shifting (pair
+    /// repulsion and volume shift; 0 disables shifting altogether).
     #[arg(long)]
     shift: Option<f64>,
+    /// β of the Lagrangian volume shift (`shifting.volume`; default 2, 0 disables it).
+    #[arg(long)]
+    volume_shift: Option<f64>,
     /// Keep the initial volumes instead of ω = 1/Σw.
     #[arg(long)]
     fixed_volumes: bool,
@@ -147,8 +150,11 @@ fn config(a: &Args) -> CavityConfig {
     if let Some(s) = a.shift {
         cfg.shifting = (s > 0.0).then(|| Shifting {
             coefficient: s,
-            ..Default::default()
+            ..cfg.shifting.unwrap_or_default()
         });
+    }
+    if let (Some(b), Some(sh)) = (a.volume_shift, cfg.shifting.as_mut()) {
+        sh.volume = b;
     }
     if a.fixed_volumes {
         cfg.volumes = VolumeRule::Fixed;

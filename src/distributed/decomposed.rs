@@ -546,6 +546,17 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             .unwrap_or(limit);
         self.sim.params.limits.dt_fixed = Some(-m[0]);
         self.sim.shift_speed = Some(m[1]);
+        // the volume shift's mean fluid volume: over every rank's own particles
+        let volume_shift = self.sim.params.motion != Motion::Eulerian
+            && self.sim.params.shifting.is_some_and(|s| s.volume > 0.0);
+        if volume_shift {
+            let p = &self.sim.particles;
+            let (sum, count) = (0..self.n_own)
+                .filter(|&i| p.role[i] == Role::Fluid)
+                .fold((0.0, 0.0), |(s, c), i| (s + p.vol[i], c + 1.0));
+            let g = self.ctx.comm.sum(&[sum, count]);
+            self.sim.volume_mean = (g[1] > 0.0).then(|| g[0] / g[1]);
+        }
         // the report's guard checks over every rank's own particles (the local sums hold the
         // halo, whose values after the step are not all right, and a rank's energy can grow
         // faster than the whole's): only the time-step check stays local (a rank's bound
@@ -621,8 +632,8 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         );
         let (src, div, disconnected) = self.sim.projection.rank_diagnostics();
         // sums: energy, ‖u − u*‖², ‖u*‖², failed ranks, ‖D f‖², ‖D u‖², disconnected, pushes,
-        // the Poisson system's unknowns and entries
-        let mut sums = [0.0; 10];
+        // the Poisson system's unknowns and entries, the volume shift's Σe² and count
+        let mut sums = [0.0; 12];
         // maxima: −(smallest squared spacing), largest shift, Δt over its bound
         let mut extremes = [f64::NEG_INFINITY; 3];
         let mut fastest = (0usize, -1.0f64);
@@ -655,6 +666,10 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
                 }
             }
             extremes[2] = report.dt_ratio;
+            if report.volume_error.is_some() {
+                let (sq, count) = self.sim.projection.volume_error_sums(p, self.n_own);
+                (sums[10], sums[11]) = (sq, count as f64);
+            }
         }
         sums[3] = failed;
         // the Poisson system's unknowns and entries: the own rows'
@@ -716,6 +731,9 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             s[6] as usize
         };
         report.wall_pushes = s[7] as usize;
+        if report.volume_error.is_some() {
+            report.volume_error = Some((s[10] / s[11].max(1.0)).sqrt());
+        }
         report.max_shift = e[1];
         report.dt_ratio = e[2];
         report.energy_growth = self.prev_energy.filter(|&e0| e0 > 0.0).map(|e0| s[0] / e0);

@@ -226,6 +226,9 @@ pub struct FlowReport {
     pub wall_pushes: usize,
     /// Free surfaces: the band the detection chose for this step (`None` without one).
     pub surface: Option<SurfaceCount>,
+    /// The volume shift's RMS relative volume error `e` before the move ([`Shifting::volume`];
+    /// `None` when no volume shift was computed this step).
+    pub volume_error: Option<f64>,
 }
 
 /// Moving particles are kept at least this fraction of the spacing `Δx` inside the walls: a
@@ -287,6 +290,12 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     /// the caller knows it beyond this simulation's particles (the particle decomposition: the
     /// maximum over every rank); `None`: the maximum over this simulation's particles.
     pub(crate) shift_speed: Option<f64>,
+    /// Scratch of the volume shift ([`Shifting::volume`]).
+    volume_shift: Vec<[f64; D]>,
+    /// The mean fluid volume of the volume shift when the caller knows it beyond this
+    /// simulation's particles (the particle decomposition: over every rank's own particles);
+    /// `None`: the mean over this simulation's fluid particles.
+    pub(crate) volume_mean: Option<f64>,
 }
 
 /// What a Lagrangian step hands to the next for each particle besides its position,
@@ -369,6 +378,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             pair_weights: Default::default(),
             free_surface: None,
             shift_speed: None,
+            volume_shift: Vec::new(),
+            volume_mean: None,
         };
         // predict and project act on the same configuration in every step of the driver
         sim.projection.overlap_solve_setup = true;
@@ -709,6 +720,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         }
         let mut advect_seconds = 0.0;
         let mut moved = shifting::Moved::default();
+        let mut volume_error = None;
         if lagrangian {
             // move with uⁿ (divergence-free and tangent to the walls after the last
             // projection) plus the shift (uⁿ and pⁿ Taylor-corrected to the shifted positions),
@@ -720,6 +732,24 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 .params
                 .shifting
                 .filter(|_| self.plan.has(Stage::Shifting));
+            // the volume shift: one solve with this configuration's Poisson matrix (not with
+            // a free surface, nor before the first projection has set the solver up)
+            let mut volume_shift = std::mem::take(&mut self.volume_shift);
+            volume_shift.clear();
+            if let Some(beta) = sh
+                .map(|s| s.volume)
+                .filter(|&b| b > 0.0 && self.free_surface.is_none() && self.steps > 0)
+            {
+                volume_error = Some(self.projection.volume_shift_into(
+                    &self.particles,
+                    &self.nl,
+                    &self.boundary,
+                    &self.params.projection,
+                    beta,
+                    self.volume_mean,
+                    &mut volume_shift,
+                )?);
+            }
             let mut u = std::mem::take(&mut self.advect_u);
             u.clone_from(&self.particles.u);
             let ls = (self.params.projection.gradient == GradientKind::LeastSquares).then(|| {
@@ -743,7 +773,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 ls,
                 &self.boundary,
                 &mut self.shift_scratch,
+                &volume_shift,
             );
+            self.volume_shift = volume_shift;
             std::mem::swap(&mut self.particles.u, &mut u);
             self.advect_u = u;
             moved = res?;
@@ -895,6 +927,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             energy_growth,
             wall_pushes: moved.wall_pushes,
             surface,
+            volume_error,
         })
     }
 }

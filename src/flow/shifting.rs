@@ -10,6 +10,9 @@
 //! - the **Fickian shift** (off by default): `−A h |u_i| Δt ∇C_i` with
 //!   `∇C_i = Σ_j ω_j (1 + R (w_h(r_ij)/w_h(Δx))^n) ∇_i w_h(r_ij)` (Skillen et al. 2013's
 //!   scaling of Lind et al. 2012's law, with Lind's tensile correction `R = 0.2`, `n = 4`),
+//! - the **volume shift** ([`Shifting::volume`]): `−β ∇h χ` with `−Δh χ` the relative
+//!   volume error, one extra solve with the projection's Poisson matrix
+//!   ([`crate::projection::ProjectionStep::volume_shift_into`]),
 //!
 //! limited to `max_fraction · Δx`. Velocity and pressure are corrected to the shifted position
 //! by a Taylor expansion (Xu et al. 2009) with the derivatives before the shift: second order,
@@ -57,6 +60,15 @@ pub struct Shifting {
     pub repulsion: f64,
     /// `r_c/Δx` of the pair repulsion (default 1).
     pub repulsion_radius: f64,
+    /// `β` of the volume shift (default 0: off): `δ_i = −β ∇h χ_i` with `−Δh χ = e`,
+    /// `e_i = ω̄/ω_i − 1` less its volume-weighted mean (`ω_i = 1/Σ_j w_h(r_ij)` the
+    /// number-density volumes, `ω̄` their mean), solved with the projection's own Poisson matrix
+    /// and solver, `χ` continued evenly into the wall ghosts (a Neumann problem: no shift
+    /// through a wall). It moves particles out of compressed regions into emptied ones by a
+    /// displacement whose divergence is `β e`: a global correction of the distribution, where the
+    /// pair repulsion and the Fickian term only see a particle's own neighbourhood. Not applied
+    /// with a free surface (the surface's number-density deficit is not an error).
+    pub volume: f64,
 }
 
 impl Default for Shifting {
@@ -75,6 +87,7 @@ impl Default for Shifting {
             tensile_exponent: 4,
             repulsion: 0.25,
             repulsion_radius: 1.0,
+            volume: 0.0,
         }
     }
 }
@@ -109,6 +122,13 @@ impl Shifting {
                 "shifting.repulsion",
                 self.repulsion,
                 "must be in [0, 0.5] (a pair closer than r_c moves apart by 2κ of the overlap)",
+            ));
+        }
+        if !(0.0..=16.0).contains(&self.volume) {
+            return Err(InputError::parameter(
+                "shifting.volume",
+                self.volume,
+                "must be in [0, 16]",
             ));
         }
         if !(self.repulsion_radius > 0.0 && self.repulsion_radius <= 2.0) {
@@ -181,7 +201,9 @@ pub(crate) struct Moved {
 /// `accel` of the last step (empty on the first), `x += Δt u + Δt²/2 a` (second order in time:
 /// with `x += Δt u` alone the trajectories, and with them the velocity sampled along them, are
 /// first order), plus a shift `δ_i`: the
-/// Fickian shift of `sh` (when given) computed at the configuration of `nl`, and the wall part
+/// Fickian shift of `sh` (when given) computed at the configuration of `nl`, plus
+/// `volume_shift` (the volume shift of [`Shifting::volume`], computed by the caller; empty for
+/// none) — together limited to `max_fraction · Δx` — and the wall part
 /// [`Boundary::wall_margin_push`] that keeps every particle at least `margin` inside the walls.
 /// `u` and the pressure are corrected to the shifted position by a first-order Taylor
 /// expansion with the gradients at the configuration of `nl` (always for the wall part; for the
@@ -207,6 +229,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     ls: Option<LsPair<'_, D>>,
     boundary: &B,
     s: &mut ShiftScratch<D>,
+    volume_shift: &[[f64; D]],
 ) -> Result<Moved, Error> {
     let n = p.len();
     assert_eq!(u.len(), n, "the advection velocity covers every particle");
@@ -268,6 +291,11 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
                             d[a] += c * nl.dx()[k][a];
                         }
                     }
+                }
+            }
+            if let Some(v) = volume_shift.get(i) {
+                for a in 0..D {
+                    d[a] += v[a];
                 }
             }
             if p.role[i] == crate::particles::Role::Dirichlet {

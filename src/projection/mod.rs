@@ -542,6 +542,11 @@ pub struct ProjectionStep<const D: usize> {
     pub captured: Option<ProjectionCapture<D>>,
     /// Pressure increment `φ` of the last step (warm start for CG).
     pub phi: Vec<f64>,
+    /// The potential `χ` of the last volume shift ([`Self::volume_shift_into`]; its warm start).
+    volume_chi: Vec<f64>,
+    /// The relative volume error `e` of the last volume shift at every particle (0 off the
+    /// fluid; [`Self::volume_error_sums`]).
+    volume_e: Vec<f64>,
     /// [`predict`](Self::predict) also assembles and (Cholesky) factorises the Poisson matrix
     /// of its configuration, on one thread while the predictor runs on the others
     /// ([`crate::poisson::PoissonSolver::prepare`]), so that [`project`](Self::project) on the same
@@ -785,6 +790,90 @@ impl<const D: usize> ProjectionStep<D> {
     ) -> &crate::consistent::LsOperators<D> {
         self.gradient.update_walls(nl, vol, Some((x, role)));
         &self.gradient.ls_walls
+    }
+
+    /// The volume shift of the Lagrangian frame (`Shifting::volume` of `crate::flow`) into `out`
+    /// (every particle; zero off the fluid): `δ_i = −β ∇h χ_i` with `−Δh χ = e` on the fluid
+    /// rows, `e_i = ω̄/ω_i − 1` (`ω̄` the mean fluid volume: `mean_volume`, or this
+    /// configuration's when `None`), solved with this step's Poisson solver and tolerance on the
+    /// configuration of `nl` (the matrix of the last projection when the configuration is the
+    /// same), `χ` continued into the ghosts like a pressure without gravity (evenly: no shift
+    /// through a wall). `Σ_i ω_i e_i = 0`, so the Neumann problem is compatible. The divergence
+    /// of the displacement is `β e`: compressed regions (`ω_i < ω̄`) expand, emptied ones
+    /// contract. Returns the root-mean-square of `e` over the fluid.
+    ///
+    /// A rank of a decomposed run (with a [`HaloSync`]) passes the mean over every rank's own
+    /// particles; the solve is then the global one and `χ` of the copies is their owners'.
+    /// Collective there: every rank calls it at the same point of the step.
+    #[allow(clippy::too_many_arguments)]
+    pub fn volume_shift_into(
+        &mut self,
+        particles: &Particles<D>,
+        nl: &NeighborList<D>,
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+        beta: f64,
+        mean_volume: Option<f64>,
+        out: &mut Vec<[f64; D]>,
+    ) -> Result<f64, Error> {
+        let n = particles.len();
+        let (comps, _, _, _) = self.diagnostics(particles, nl, params)?;
+        let (role, vol) = (&particles.role, &particles.vol);
+        let fluid = |i: usize| role[i] == Role::Fluid;
+        let (sum_vol, count) = (0..n)
+            .filter(|&i| fluid(i))
+            .fold((0.0, 0usize), |(s, c), i| (s + vol[i], c + 1));
+        out.clear();
+        out.resize(n, [0.0; D]);
+        let mut e = std::mem::take(&mut self.volume_e);
+        e.clear();
+        e.resize(n, 0.0);
+        if count == 0 && self.halo.is_none() {
+            self.volume_e = e;
+            return Ok(0.0);
+        }
+        let mean_vol = mean_volume.unwrap_or(sum_vol / count.max(1) as f64);
+        let mut sq = 0.0;
+        for i in (0..n).filter(|&i| fluid(i)) {
+            e[i] = mean_vol / vol[i] - 1.0;
+            sq += e[i] * e[i];
+        }
+        let mut chi = std::mem::take(&mut self.volume_chi);
+        chi.resize(n, 0.0);
+        let solved = self
+            .solver
+            .solve(nl, vol, role, &comps, &e, &mut chi, &params.solve);
+        self.volume_e = e;
+        if let Err(err) = solved {
+            chi.clear();
+            self.volume_chi = chi;
+            return Err(err.into());
+        }
+        if let Some(h) = self.halo.as_mut() {
+            h.scalar(&mut chi);
+        }
+        if boundary.has_ghosts() {
+            boundary.fill_pressure(&particles.x, role, &mut chi, [0.0; D]);
+        }
+        crate::operators::grad_diff_into(nl, vol, &chi, out);
+        self.volume_chi = chi;
+        for (i, d) in out.iter_mut().enumerate() {
+            *d = if fluid(i) {
+                d.map(|g| -beta * g)
+            } else {
+                [0.0; D]
+            };
+        }
+        Ok((sq / count.max(1) as f64).sqrt())
+    }
+
+    /// `(Σ e_i², count)` of the last volume shift's relative volume error over the fluid
+    /// particles among the first `n` ([`Self::volume_shift_into`]; a rank of a decomposed run
+    /// passes its own particles' count).
+    pub fn volume_error_sums(&self, particles: &Particles<D>, n: usize) -> (f64, usize) {
+        (0..n.min(self.volume_e.len()))
+            .filter(|&i| particles.role[i] == Role::Fluid)
+            .fold((0.0, 0), |(s, c), i| (s + self.volume_e[i].powi(2), c + 1))
     }
 
     /// The least-squares coefficients for the configuration of `nl`, brought up to date: the

@@ -242,6 +242,8 @@ pub struct StepContext {
     /// Free surfaces: the surface (band) and splash particles of the step (`None` without a
     /// free surface).
     pub surface: Option<crate::flow::SurfaceCount>,
+    /// The volume shift's RMS relative volume error before the move (`None` without one).
+    pub volume_error: Option<f64>,
 }
 
 impl StepContext {
@@ -269,6 +271,7 @@ impl StepContext {
             advect_seconds: report.advect_seconds,
             energy_growth: report.energy_growth,
             surface: report.surface,
+            volume_error: report.volume_error,
         }
     }
 }

@@ -632,6 +632,8 @@ pub struct ReplaySummary {
     pub correction_ratio: Stat,
     /// Kinetic-energy growth per step (steps that report it).
     pub energy_growth: Stat,
+    /// The volume shift's RMS relative volume error (steps that report it).
+    pub volume_error: Stat,
     /// Largest Theorem 4.5 ratio and its step.
     pub max_stability_ratio: Option<(f64, u64)>,
     /// Steps whose ratio exceeds 1 (the theorem's bound).
@@ -701,6 +703,13 @@ impl fmt::Display for ReplaySummary {
             st(&self.correction_ratio)
         )?;
         writeln!(f, "KE growth   {} (per step)", st(&self.energy_growth))?;
+        if !self.volume_error.max.is_nan() {
+            writeln!(
+                f,
+                "volume err  {} (RMS ω̄/ω − 1, volume shift)",
+                st(&self.volume_error)
+            )?;
+        }
         if let Some((r, s)) = self.max_stability_ratio {
             writeln!(
                 f,
@@ -803,6 +812,7 @@ impl Replay {
         out.min_spacing = Stat::of(s.iter().map(|d| d.min_spacing));
         out.correction_ratio = Stat::of(s.iter().map(|d| d.correction_ratio));
         out.energy_growth = Stat::of(s.iter().filter_map(|d| d.energy_growth));
+        out.volume_error = Stat::of(s.iter().filter_map(|d| d.volume_error));
         out.max_stability_ratio = s
             .iter()
             .filter(|d| d.stability_ratio.is_finite())
@@ -863,7 +873,7 @@ impl Replay {
             "step,time,dt,dt_limit,components,anchored,floating,isolated,allowed_floating,\
              connectivity_ok,c0,stability_ratio,min_spacing,correction_ratio,energy_growth,solver,unknowns,nnz,iterations,abs_residual,\
              rel_residual,compatibility_defect,div_before,div_after,kinetic_energy,max_speed,\
-             neighbors_rebuilt,max_shift,t_neighbors,t_predictor,t_diagnostics,t_source,\
+             neighbors_rebuilt,max_shift,volume_error,t_neighbors,t_predictor,t_diagnostics,t_source,\
              t_solve,t_correction,t_advect,t_total,t_record,surface_particles,splash_particles"
         )
         .map_err(io)?;
@@ -876,7 +886,7 @@ impl Replay {
                 .unwrap_or_default();
             writeln!(
                 w,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
                 Num(d.time),
                 Num(d.dt),
@@ -905,6 +915,7 @@ impl Replay {
                 Num(d.max_speed),
                 d.neighbors_rebuilt,
                 Num(d.max_shift),
+                d.volume_error.map(|v| Num(v).to_string()).unwrap_or_default(),
                 Num(t.neighbors),
                 Num(t.predictor),
                 Num(t.diagnostics),
@@ -961,6 +972,9 @@ impl Replay {
                     series("‖uⁿ⁺¹ − u*‖/‖u*‖", &|d| d.correction_ratio),
                     series("KE growth − 1 (abs)", &|d| {
                         d.energy_growth.map_or(f64::NAN, |g| (g - 1.0).abs())
+                    }),
+                    series("volume error (RMS)", &|d| {
+                        d.volume_error.unwrap_or(f64::NAN)
                     }),
                     series("isolated + floating", &|d| {
                         (d.connectivity.isolated + d.connectivity.floating) as f64

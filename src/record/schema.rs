@@ -412,6 +412,11 @@ pub struct StepDiagnostics {
     #[serde(deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
     pub max_shift: f64,
+    /// Moving particles with the volume shift: the RMS relative deviation of the fluid's
+    /// number-density volumes from their mean before the move (`ω̄/ω_i − 1`); `null` without a
+    /// volume shift (and in older logs).
+    #[serde(default)]
+    pub volume_error: Option<f64>,
     /// Seconds per stage.
     pub timings: TimingDiagnostics,
     /// Free surfaces: particles of the band (surface particles) this step; `null` without a
@@ -492,6 +497,7 @@ impl StepDiagnostics {
             max_speed: p.max_speed,
             neighbors_rebuilt: ctx.neighbors_rebuilt,
             max_shift: ctx.max_shift,
+            volume_error: ctx.volume_error,
             timings: TimingDiagnostics {
                 neighbors: ctx.neighbors_seconds,
                 predictor: t.predictor,

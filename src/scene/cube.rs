@@ -72,6 +72,7 @@ impl SceneParams for Cube {
             n: 16,
             t_end: 30.0,
             laplacian: Some(super::cavity::WALL_LAPLACIAN),
+            shifting: Some(super::cavity::wall_shifting()),
             ..FlowConfig::default()
         }
     }
