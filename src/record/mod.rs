@@ -244,6 +244,8 @@ pub struct StepContext {
     pub surface: Option<crate::flow::SurfaceCount>,
     /// The volume shift's RMS relative volume error before the move (`None` without one).
     pub volume_error: Option<f64>,
+    /// Particles the wall margin stopped this step ([`FlowReport::wall_pushes`]).
+    pub wall_pushes: usize,
 }
 
 impl StepContext {
@@ -272,6 +274,7 @@ impl StepContext {
             energy_growth: report.energy_growth,
             surface: report.surface,
             volume_error: report.volume_error,
+            wall_pushes: report.wall_pushes,
         }
     }
 }

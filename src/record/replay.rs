@@ -634,6 +634,8 @@ pub struct ReplaySummary {
     pub energy_growth: Stat,
     /// The volume shift's RMS relative volume error (steps that report it).
     pub volume_error: Stat,
+    /// Particles the wall margin stopped, over all steps, and the steps in which it did.
+    pub wall_pushes: (u64, usize),
     /// Largest Theorem 4.5 ratio and its step.
     pub max_stability_ratio: Option<(f64, u64)>,
     /// Steps whose ratio exceeds 1 (the theorem's bound).
@@ -708,6 +710,13 @@ impl fmt::Display for ReplaySummary {
                 f,
                 "volume err  {} (RMS ω̄/ω − 1, volume shift)",
                 st(&self.volume_error)
+            )?;
+        }
+        if self.wall_pushes.0 > 0 {
+            writeln!(
+                f,
+                "wall pushes {} particles in {} steps (stopped at the wall margin)",
+                self.wall_pushes.0, self.wall_pushes.1
             )?;
         }
         if let Some((r, s)) = self.max_stability_ratio {
@@ -813,6 +822,9 @@ impl Replay {
         out.correction_ratio = Stat::of(s.iter().map(|d| d.correction_ratio));
         out.energy_growth = Stat::of(s.iter().filter_map(|d| d.energy_growth));
         out.volume_error = Stat::of(s.iter().filter_map(|d| d.volume_error));
+        out.wall_pushes = s.iter().fold((0, 0), |(n, k), d| {
+            (n + d.wall_pushes, k + usize::from(d.wall_pushes > 0))
+        });
         out.max_stability_ratio = s
             .iter()
             .filter(|d| d.stability_ratio.is_finite())
@@ -873,7 +885,7 @@ impl Replay {
             "step,time,dt,dt_limit,components,anchored,floating,isolated,allowed_floating,\
              connectivity_ok,c0,stability_ratio,min_spacing,correction_ratio,energy_growth,solver,unknowns,nnz,iterations,abs_residual,\
              rel_residual,compatibility_defect,div_before,div_after,kinetic_energy,max_speed,\
-             neighbors_rebuilt,max_shift,volume_error,t_neighbors,t_predictor,t_diagnostics,t_source,\
+             neighbors_rebuilt,max_shift,volume_error,wall_pushes,t_neighbors,t_predictor,t_diagnostics,t_source,\
              t_solve,t_correction,t_advect,t_total,t_record,surface_particles,splash_particles"
         )
         .map_err(io)?;
@@ -886,7 +898,7 @@ impl Replay {
                 .unwrap_or_default();
             writeln!(
                 w,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
                 Num(d.time),
                 Num(d.dt),
@@ -916,6 +928,7 @@ impl Replay {
                 d.neighbors_rebuilt,
                 Num(d.max_shift),
                 d.volume_error.map(|v| Num(v).to_string()).unwrap_or_default(),
+                d.wall_pushes,
                 Num(t.neighbors),
                 Num(t.predictor),
                 Num(t.diagnostics),

@@ -417,6 +417,10 @@ pub struct StepDiagnostics {
     /// volume shift (and in older logs).
     #[serde(default)]
     pub volume_error: Option<f64>,
+    /// Moving particles: particles the wall margin stopped this step (a particle that would
+    /// have come closer to a wall than the margin; 0 in older logs).
+    #[serde(default)]
+    pub wall_pushes: u64,
     /// Seconds per stage.
     pub timings: TimingDiagnostics,
     /// Free surfaces: particles of the band (surface particles) this step; `null` without a
@@ -498,6 +502,7 @@ impl StepDiagnostics {
             neighbors_rebuilt: ctx.neighbors_rebuilt,
             max_shift: ctx.max_shift,
             volume_error: ctx.volume_error,
+            wall_pushes: ctx.wall_pushes as u64,
             timings: TimingDiagnostics {
                 neighbors: ctx.neighbors_seconds,
                 predictor: t.predictor,

@@ -871,6 +871,18 @@ pub struct MonitorRanges {
     pub max_correction_ratio: f64,
     /// Largest kinetic-energy growth factor of a step after the first ten steps.
     pub max_energy_growth: f64,
+    /// Moving particles: particles the wall margin stopped, summed over the steps
+    /// ([`FlowReport::wall_pushes`]: a particle that would have come closer to a wall than the
+    /// margin, its wall-normal motion stopped there).
+    #[serde(default)]
+    pub wall_pushes: usize,
+    /// Steps in which the wall margin stopped a particle.
+    #[serde(default)]
+    pub wall_push_steps: usize,
+    /// Largest RMS relative volume error the volume shift saw before a move
+    /// ([`FlowReport::volume_error`]; `null` without a volume shift).
+    #[serde(default)]
+    pub max_volume_error: Option<f64>,
 }
 
 impl Default for MonitorRanges {
@@ -894,6 +906,9 @@ impl MonitorRanges {
             max_div_ratio: 0.0,
             max_correction_ratio: 0.0,
             max_energy_growth: 0.0,
+            wall_pushes: 0,
+            wall_push_steps: 0,
+            max_volume_error: None,
         }
     }
 
@@ -913,6 +928,11 @@ impl MonitorRanges {
         let floor = 1e-12 * p.max_speed / p.min_spacing;
         if p.div_before > 0.0 && !(p.div_before <= floor) {
             self.max_div_ratio = self.max_div_ratio.max(p.div_after / p.div_before);
+        }
+        self.wall_pushes += rep.wall_pushes;
+        self.wall_push_steps += usize::from(rep.wall_pushes > 0);
+        if let Some(e) = rep.volume_error {
+            self.max_volume_error = Some(self.max_volume_error.map_or(e, |m| m.max(e)));
         }
         if rep.step > 10 {
             self.max_correction_ratio = self.max_correction_ratio.max(p.correction_ratio);
