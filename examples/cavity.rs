@@ -75,7 +75,7 @@ struct Args {
     /// Keep the initial volumes instead of ω = 1/Σw.
     #[arg(long)]
     fixed_volumes: bool,
-    /// CFL number on h/U (default 0.2; 0.1 with --motion lagrangian).
+    /// CFL number on h/U (default 0.2; with --motion lagrangian 0.15 up to a cell Reynolds number Re/n of 4, 0.1 above).
     #[arg(long)]
     cfl: Option<f64>,
     /// Linear solver: cholesky, cg, auto.
@@ -159,9 +159,10 @@ fn config(a: &Args) -> CavityConfig {
     if a.fixed_volumes {
         cfg.volumes = VolumeRule::Fixed;
     }
-    // the Lagrangian cavity blows up at the lid corners at the default CFL factor
+    // the Lagrangian cavity needs a smaller step than the default CFL factor (above a cell
+    // Reynolds number of 4, a smaller one still)
     cfg.limits.cfl = a.cfl.unwrap_or(match a.motion {
-        Motion::Lagrangian => gpm::scene::cavity::LAGRANGIAN_CFL,
+        Motion::Lagrangian => gpm::scene::cavity::lagrangian_cfl(a.re, a.n),
         Motion::Eulerian => cfg.limits.cfl,
     });
     if let Some(t) = a.steady_tol {

@@ -23,12 +23,36 @@ use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
 
-/// The CFL factor (`limits.cfl`) a Lagrangian cavity needs: at the default 0.2 a particle near
-/// the top-left lid corner is driven through the lid (Re 100, n = 50: at t ≈ 0.3; 0.15: at
-/// t ≈ 1.0); at 0.1 it runs to steady state (measured on this machine, README). The cavity example
-/// uses it for `--motion lagrangian` unless `--cfl` is given; a configuration file sets
-/// `limits.cfl` itself.
+/// The CFL factor (`limits.cfl`) a Lagrangian cavity needs at a cell Reynolds number
+/// `U Δx/ν` above [`LAGRANGIAN_CELL_RE`]: before the volume shift ([`wall_shifting`]) a particle
+/// near a lid corner was driven through the lid at 0.2 and 0.15 (Re 100, n = 50); with it,
+/// CFL 0.2 fails at Re 1000, n = 50, at t = 20.5, and 0.1 runs the Re 1000 cavity at n = 100
+/// to t = 90 (measured on this machine, README). See [`lagrangian_cfl`].
 pub const LAGRANGIAN_CFL: f64 = 0.1;
+
+/// The CFL factor of a Lagrangian cavity at a cell Reynolds number up to
+/// [`LAGRANGIAN_CELL_RE`] (see [`lagrangian_cfl`]).
+pub const LAGRANGIAN_CFL_VISCOUS: f64 = 0.15;
+
+/// The cell Reynolds number `U Δx/ν = Re/n` up to which a Lagrangian cavity takes the larger
+/// step [`LAGRANGIAN_CFL_VISCOUS`]: with the volume shift CFL 0.2 held at 2 and 4 (Re 100 and
+/// 200, n = 50: steady) and at 8 (Re 400, n = 50: to t = 40, its profiles too noisy to be
+/// judged steady).
+pub const LAGRANGIAN_CELL_RE: f64 = 4.0;
+
+/// The CFL factor the cavity example gives a Lagrangian cavity of Reynolds number `re` with `n`
+/// particles per side unless `--cfl` is given: [`LAGRANGIAN_CFL_VISCOUS`] up to the cell
+/// Reynolds number [`LAGRANGIAN_CELL_RE`], [`LAGRANGIAN_CFL`] above. The error of the Re 100
+/// cavity grows with the step (n = 50, RMS u / v against the extrapolated reference: CFL 0.1
+/// 0.12 % / 0.12 %, 0.15 0.20 % / 0.14 %, 0.2 0.26 % / 0.23 %); the larger step keeps the
+/// n = 50 run within 20 s on two cores. A configuration file sets `limits.cfl` itself.
+pub fn lagrangian_cfl(re: f64, n: usize) -> f64 {
+    if re / n.max(1) as f64 <= LAGRANGIAN_CELL_RE {
+        LAGRANGIAN_CFL_VISCOUS
+    } else {
+        LAGRANGIAN_CFL
+    }
+}
 use std::time::Instant;
 
 /// The viscous Laplacian of the cavity and the cube by default: the least-squares `Δˡˢ`,
