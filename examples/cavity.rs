@@ -87,8 +87,9 @@ struct Args {
     /// Averaging window for the profiles (time units).
     #[arg(long)]
     average: Option<f64>,
-    /// Continuation of the Poisson source into wall ghosts: auto (mirror for the GPM
-    /// operators, no-slip for the consistent ones), mirror or no-slip.
+    /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles
+    /// and for the GPM operators, no-slip for the consistent ones on fixed particles), mirror or
+    /// no-slip.
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Width of the lid's corner ramp in side lengths (0: the classic lid, discontinuous at the

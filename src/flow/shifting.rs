@@ -61,8 +61,8 @@ pub struct Shifting {
     /// `r_c/Δx` of the pair repulsion (default 1).
     pub repulsion_radius: f64,
     /// `β` of the volume shift (default 0: off): `δ_i = −β ∇h χ_i` with `−Δh χ = e`,
-    /// `e_i = ω̄/ω_i − 1` less its volume-weighted mean (`ω_i = 1/Σ_j w_h(r_ij)` the
-    /// number-density volumes, `ω̄` their mean), solved with the projection's own Poisson matrix
+    /// `e_i = ω̄/ω_i − 1` (`ω_i = 1/Σ_j w_h(r_ij)` the number-density volumes, `ω̄` their mean,
+    /// so that `Σ_i ω_i e_i = 0`), solved with the projection's own Poisson matrix
     /// and solver, `χ` continued evenly into the wall ghosts (a Neumann problem: no shift
     /// through a wall). It moves particles out of compressed regions into emptied ones by a
     /// displacement whose divergence is `β e`: a global correction of the distribution, where the

@@ -22,6 +22,7 @@ use crate::reference::{extrapolated, ghia, rms_max, CentrelineTable};
 use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
+use std::time::Instant;
 
 /// The CFL factor (`limits.cfl`) a Lagrangian cavity needs at a cell Reynolds number
 /// `U Δx/ν` above [`LAGRANGIAN_CELL_RE`]: before the volume shift ([`wall_shifting`]) a particle
@@ -53,7 +54,6 @@ pub fn lagrangian_cfl(re: f64, n: usize) -> f64 {
         LAGRANGIAN_CFL
     }
 }
-use std::time::Instant;
 
 /// The viscous Laplacian of the cavity and the cube by default: the least-squares `Δˡˢ`,
 /// exact on quadratic velocities that take the wall's value, where the GPM `Δh` with no-slip
@@ -72,9 +72,11 @@ pub const WALL_LAPLACIAN: crate::consistent::LaplacianKind =
 /// limited to `0.2 Δx` as before. Without the volume shift (and with the no-slip source rule,
 /// [`SourceGhosts::Auto`]) a Lagrangian cavity at Re 1000 fails within a fraction of a time
 /// unit: a particle next to a lid corner in a region the flow has emptied (n = 50 at t = 0.2,
-/// n = 100 at t = 0.4); with it n = 50 runs to t = 150. Limiting the shift to `0.1 Δx` or
-/// `0.15 Δx` (less numerical diffusion by the Taylor-corrected shift next to the walls) fails
-/// there at t = 96 and t = 83. Measured in the README (Moving particles).
+/// n = 100 at t = 0.4); with it n = 100 runs to t = 90 (1.11 % / 0.87 % RMS off the
+/// extrapolated reference), while n = 50 still stops on the speed guard between t = 20 and
+/// t = 105 depending on the step, `β` and the lid (a particle next to the right wall below the
+/// top-right corner). `β = 1` runs smoother but stopped sooner at n = 50; limiting the shift to
+/// `0.1 Δx` or `0.15 Δx` did not help either. Measured in the README (Moving particles).
 pub fn wall_shifting() -> Shifting {
     Shifting {
         volume: 2.0,
@@ -188,7 +190,7 @@ pub enum SourceGhosts {
     /// images the divergence's wall points carry the lid's speed right up to the corner, where
     /// the side wall's carry zero: the source is `O(1/Δx)` at the lid corners, and a Lagrangian
     /// cavity at Re 1000 fails there (n = 50: t = 0.2 with the no-slip rule; with the mirror
-    /// rule and the walls' shifting it runs to t = 150).
+    /// rule and the walls' shifting n = 100 runs to t = 90, n = 50 to t ≈ 100).
     #[default]
     Auto,
     /// Normal component flipped, tangential kept: exact adjointness, Theorem 4.5 applies.
