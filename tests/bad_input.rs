@@ -1092,6 +1092,7 @@ fn cli_rejects_invalid_configurations_cleanly() {
             vec!["parameter 'h_over_dx' = 0.5"],
         ),
         (vec!["--t-end", "inf"], vec!["parameter 't_end' = inf"]),
+        (vec!["--cfl=-1"], vec!["parameter 'limits.cfl' = -1"]),
     ] {
         let mut a = vec!["run", "cavity", "--quiet", "--out", out];
         a.extend(args.iter().copied());

@@ -198,6 +198,10 @@ struct RunArgs {
     /// Particle frame: lagrangian or eulerian.
     #[arg(long)]
     motion: Option<Motion>,
+    /// CFL number on h/U (the key `limits.cfl`; default 0.2; a Lagrangian cavity needs less,
+    /// e.g. 0.1 at Re 1000 — the cavity example's `lagrangian_cfl` rule).
+    #[arg(long)]
+    cfl: Option<f64>,
     /// What to record: none, diagnostics (every step) or full (plus particles and projection
     /// inputs every --record-every steps).
     #[arg(long, default_value = "diagnostics")]
@@ -461,6 +465,7 @@ impl SceneVisitor for RunScene {
         override_opt(&mut cfg.weight, a.weight);
         override_opt(&mut cfg.h_over_dx, a.h_ratio);
         override_opt(&mut cfg.motion, a.motion);
+        override_opt(&mut cfg.limits.cfl, a.cfl);
         if a.initial.is_some() {
             cfg.initial = a.initial.clone();
         }
