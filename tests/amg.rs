@@ -775,3 +775,63 @@ fn moved_particles_keep_the_hierarchy_and_converge() {
         [Rebuilt, Rebuilt, Rebuilt]
     );
 }
+
+/// Gershgorin's bound on `ρ(D⁻¹A)`, computed densely: `max_i Σ_j |a_ij| / a_ii`.
+fn gershgorin(a: CsrRef<'_>) -> f64 {
+    let m = dense(a, a.rows());
+    (0..a.rows())
+        .filter(|&i| m[(i, i)] > 0.0)
+        .map(|i| m.row(i).iter().map(|v| v.abs()).sum::<f64>() / m[(i, i)])
+        .fold(0.0, f64::max)
+}
+
+/// A lagged hierarchy on a moved matrix (same unknowns, new pattern) keeps the finest level's
+/// spectral-radius estimate where Gershgorin's bound `g` proves its Jacobi weight stable for
+/// the new matrix (`weight g / ρ ≤ 1.95`), and raises it to `weight g / 1.95` otherwise —
+/// without a new Lanczos estimate; either way the V-cycle on the moved matrix stays symmetric
+/// positive definite.
+#[test]
+fn a_moved_matrix_keeps_the_spectral_radius_where_gershgorin_proves_it_stable() {
+    use gpm::poisson::amg::{AmgCache, AmgReuse};
+    let spec = |seed| Spec::lattice(20, 3.0, Weight::WendlandC2).jittered(0.3, seed);
+    let (f0, f1) = (dirichlet_box::<2>(spec(31)), dirichlet_box::<2>(spec(32)));
+    let before = assemble(&f0);
+    // the same assembly brought to the moved particles: a new pattern of the same unknowns
+    let mut after = assemble(&f0);
+    after.update_pattern(&f1.nl, &f1.role);
+    after.fill_values(&f1.nl, &f1.vol, &f1.role).unwrap();
+    assert_eq!(before.n(), after.n());
+    assert_ne!(before.pattern_id(), after.pattern_id());
+    let g = gershgorin(CsrRef::from(&after));
+    let mut seen = [false; 2];
+    for weight in [4.0 / 3.0, 1.9] {
+        let mut cache = AmgCache::new(AmgParams {
+            coarse_size: 20,
+            smoother_weight: weight,
+            ..AmgParams::default()
+        });
+        let reuse = AmgReuse::default();
+        assert_eq!(cache.prepare(&before, reuse), AmgSetup::Rebuilt);
+        let rho0 = cache.hierarchy().unwrap().stats().rho[0];
+        assert_eq!(cache.prepare(&after, reuse), AmgSetup::Lagged);
+        let rho1 = cache.hierarchy().unwrap().stats().rho[0];
+        let provable = weight * g / rho0 <= 1.95;
+        seen[provable as usize] = true;
+        if provable {
+            assert_eq!(rho1, rho0, "weight {weight}: kept");
+        } else {
+            let raised = weight * g / 1.95;
+            assert!(
+                (rho1 - raised).abs() <= 1e-12 * raised,
+                "weight {weight}: ρ {rho1} (raised to {raised})"
+            );
+        }
+        // the V-cycle of the lagged hierarchy on the moved matrix
+        let m = CsrRef::from(&after);
+        let b = dense_preconditioner(cache.hierarchy_mut().unwrap(), m);
+        let sym = (&b + b.transpose()) * 0.5;
+        let lmin = SymmetricEigen::new(sym).eigenvalues.min();
+        assert!(lmin > 0.0, "weight {weight}: λ_min(B) = {lmin:e}");
+    }
+    assert_eq!(seen, [true, true], "both branches (g = {g})");
+}
