@@ -64,10 +64,13 @@ if ! [ -x "$py" ] || ! "$py" -c "import pysph, h5py, matplotlib, scipy, mpi4py" 
     # PySPH 1.0b2 builds against numpy 2 and Cython 3 (with Cython 0.29 its OpenCL module does
     # not compile); its build needs cyarray, compyle, mako and a C++ compiler with OpenMP, so
     # they are installed first and the build uses them (no build isolation). At run time the
-    # ISPH scheme needs scipy, and the shifting tool mpi4py (even in a serial run)
+    # ISPH scheme needs scipy, and the shifting tool mpi4py (even in a serial run). mpi4py is
+    # installed after PySPH: where it can be imported at build time (an MPI library on the
+    # machine) PySPH also builds its parallel module, which needs PyZoltan, and fails
     "${pip[@]}" "numpy>=2,<3" "cython>=3" "setuptools>=64" wheel mako pytools beaker cyarray \
-        compyle h5py matplotlib scipy mpi4py
+        compyle h5py matplotlib scipy
     "${pip[@]}" --no-build-isolation "pysph==1.0b2"
+    "${pip[@]}" mpi4py
 fi
 "$py" -c "import pysph, numpy, compyle; print('PySPH', pysph.__version__, 'numpy', numpy.__version__, 'compyle', compyle.__version__)"
 
