@@ -13,8 +13,9 @@
 //! values change every step). After warm-up steps, the mean time per step of each stage is
 //! written to `steps.csv` (`d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step`),
 //! together with the peak memory, and a table is printed. The cavity reuse comparison runs the
-//! n = 100 cavity with every reuse switched on and off. The SpMV bandwidth of the Poisson matrix
-//! is compared with a stream copy measured in the same process. The growth of the time per step
+//! n = 100 cavity with every reuse switched on and off. The SpMV bandwidth of each case's Poisson
+//! matrix is compared with a stream copy measured in the same process (`spmv.csv`:
+//! `d,n_particles,frame,solver,reuse,threads,matrix_mb,spmv_gbs,copy_gbs,ratio`). The growth of the time per step
 //! with N (the exponent of a least-squares power law per dimension and frame) is written to
 //! `scaling.csv`.
 
@@ -80,6 +81,8 @@ struct Outcome {
     peak_mb: f64,
     poisson_iters: f64,
     spmv_gbs: f64,
+    /// Bytes one SpMV reads and writes (MB): matrix entries, column indices, three vectors.
+    spmv_mb: f64,
     copy_gbs: f64,
 }
 
@@ -162,21 +165,29 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     )?)
 }
 
-/// Memory bandwidth of a parallel copy of `len` doubles (GB/s, read + write).
-fn stream_copy(len: usize) -> f64 {
-    let a = vec![1.0f64; len];
-    let mut b = vec![0.0f64; len];
-    let mut best = f64::INFINITY;
-    for _ in 0..5 {
+/// The SpMV bandwidth of `a` and the memory bandwidth of a parallel copy of `len` doubles (GB/s,
+/// read + write), measured in alternation (ten rounds, the best of each), so that both see the
+/// same state of a machine whose bandwidth drifts.
+fn spmv_and_copy(a: &gpm::poisson::Assembly, len: usize) -> (f64, f64) {
+    let x = vec![1.0; a.n()];
+    let mut y = vec![0.0; a.n()];
+    let src = vec![1.0f64; len];
+    let mut dst = vec![0.0f64; len];
+    let (mut best_spmv, mut best_copy) = (f64::INFINITY, f64::INFINITY);
+    for _ in 0..10 {
         let t = Instant::now();
-        b.par_iter_mut()
-            .zip(a.par_iter())
+        a.spmv(&x, &mut y);
+        best_spmv = best_spmv.min(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        dst.par_iter_mut()
+            .zip(src.par_iter())
             .with_min_len(1 << 14)
-            .for_each(|(y, x)| *y = *x);
-        best = best.min(t.elapsed().as_secs_f64());
+            .for_each(|(d, s)| *d = *s);
+        best_copy = best_copy.min(t.elapsed().as_secs_f64());
     }
-    std::hint::black_box(&b);
-    16.0 * len as f64 / best / 1e9
+    std::hint::black_box((&y, &dst));
+    let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
+    (bytes / best_spmv / 1e9, 16.0 * len as f64 / best_copy / 1e9)
 }
 
 fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
@@ -248,23 +259,13 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
     rec.finish()?;
     let _ = std::fs::remove_dir_all(&dir);
     let m = c.steps as f64;
-    // SpMV bandwidth on the Poisson matrix just used
-    let a = &sim.projection.solver.assembly;
-    let x = vec![1.0; a.n()];
-    let mut y = vec![0.0; a.n()];
-    let mut best = f64::INFINITY;
-    for _ in 0..10 {
-        let t = Instant::now();
-        a.spmv(&x, &mut y);
-        best = best.min(t.elapsed().as_secs_f64());
-    }
-    std::hint::black_box(&y);
-    let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
-    let spmv_gbs = bytes / best / 1e9;
-    // peak memory of the run, before the copy benchmark allocates its arrays
+    // peak memory of the run, before the bandwidth measurement allocates its arrays
     let peak = peak_mb();
-    // 2 × 256 MB: far larger than the caches, so this is the memory bandwidth
-    let copy_gbs = stream_copy(1 << 25);
+    // SpMV bandwidth on the Poisson matrix just used, against a copy of 2 × 256 MB (far larger
+    // than the caches, so the memory bandwidth)
+    let a = &sim.projection.solver.assembly;
+    let (spmv_gbs, copy_gbs) = spmv_and_copy(a, 1 << 25);
+    let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
     Ok(Outcome {
         case: c.clone(),
         stages: names
@@ -276,6 +277,7 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
         peak_mb: peak,
         poisson_iters: iters / m,
         spmv_gbs,
+        spmv_mb: bytes / 1e6,
         copy_gbs,
     })
 }
@@ -374,9 +376,15 @@ fn main_inner(a: Args) -> Result<()> {
         a.warmup
     );
     println!(
-        "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} | {:>9} {:>7} {:>6} {:>6}",
-        "d", "N", "frame", "solver", "reuse", "thr", "neigh", "ops", "assem", "solve", "corr", "diag", "rec", "other", "total ms", "MB", "iters", "GB/s"
+        "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8} | {:>9} {:>7} {:>6} {:>6} {:>6} {:>5}",
+        "d", "N", "frame", "solver", "reuse", "thr", "neigh", "ops", "assem", "solve", "corr", "diag", "rec", "other", "total ms", "MB", "iters", "GB/s", "copy", "%"
     );
+    // the SpMV of each case's Poisson matrix against the stream copy of the same process
+    let mut spmv_csv = std::fs::File::create(a.out.join("spmv.csv"))?;
+    writeln!(
+        spmv_csv,
+        "d,n_particles,frame,solver,reuse,threads,matrix_mb,spmv_gbs,copy_gbs,ratio"
+    )?;
     // (d, frame, N, seconds per step) of the main rows (auto solver, reuse, 2 threads)
     let mut sizes: Vec<(usize, String, f64, f64)> = Vec::new();
     for c in &cases {
@@ -387,11 +395,26 @@ fn main_inner(a: Args) -> Result<()> {
                 }
                 let ms = |k: usize| o.stages[k].1 * 1e3;
                 println!(
-                    "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} | {:>9.2} {:>7.0} {:>6.1} {:>6.1}",
+                    "{:>2} {:>9} {:>7} {:>9} {:>5} {:>3} | {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>8.2} | {:>9.2} {:>7.0} {:>6.1} {:>6.1} {:>6.1} {:>5.0}",
                     c.d, c.n_particles, c.frame, c.solver.to_string(), c.reuse, c.threads,
                     ms(0), ms(1), ms(2), ms(3), ms(4), ms(5), ms(6), ms(7),
-                    o.total * 1e3, o.peak_mb, o.poisson_iters, o.spmv_gbs
+                    o.total * 1e3, o.peak_mb, o.poisson_iters, o.spmv_gbs, o.copy_gbs,
+                    100.0 * o.spmv_gbs / o.copy_gbs
                 );
+                writeln!(
+                    spmv_csv,
+                    "{},{},{},{},{},{},{:.1},{:.2},{:.2},{:.3}",
+                    c.d,
+                    c.n_particles,
+                    c.frame,
+                    c.solver,
+                    c.reuse,
+                    c.threads,
+                    o.spmv_mb,
+                    o.spmv_gbs,
+                    o.copy_gbs,
+                    o.spmv_gbs / o.copy_gbs
+                )?;
                 for (stage, s) in &o.stages {
                     writeln!(
                         csv,
