@@ -72,6 +72,16 @@ struct Case {
     warmup: usize,
 }
 
+impl Case {
+    /// The columns that name the case in the CSV files: `d,n_particles,frame,solver,reuse,threads`.
+    fn csv_key(&self) -> String {
+        format!(
+            "{},{},{},{},{},{}",
+            self.d, self.n_particles, self.frame, self.solver, self.reuse, self.threads
+        )
+    }
+}
+
 /// One configuration's result.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 struct Outcome {
@@ -165,10 +175,11 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     )?)
 }
 
-/// The SpMV bandwidth of `a` and the memory bandwidth of a parallel copy of `len` doubles (GB/s,
-/// read + write), measured in alternation (ten rounds, the best of each), so that both see the
-/// same state of a machine whose bandwidth drifts.
-fn spmv_and_copy(a: &gpm::poisson::Assembly, len: usize) -> (f64, f64) {
+/// The SpMV bandwidth of `a`, the bytes one SpMV moves (entries, column indices, three vectors)
+/// and the memory bandwidth of a parallel copy of `len` doubles (GB/s, read + write), measured
+/// in alternation (ten rounds, the best of each), so that both see the same state of a machine
+/// whose bandwidth drifts.
+fn spmv_and_copy(a: &gpm::poisson::Assembly, len: usize) -> (f64, f64, f64) {
     let x = vec![1.0; a.n()];
     let mut y = vec![0.0; a.n()];
     let src = vec![1.0f64; len];
@@ -187,7 +198,11 @@ fn spmv_and_copy(a: &gpm::poisson::Assembly, len: usize) -> (f64, f64) {
     }
     std::hint::black_box((&y, &dst));
     let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
-    (bytes / best_spmv / 1e9, 16.0 * len as f64 / best_copy / 1e9)
+    (
+        bytes / best_spmv / 1e9,
+        bytes,
+        16.0 * len as f64 / best_copy / 1e9,
+    )
 }
 
 fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
@@ -264,8 +279,7 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
     // SpMV bandwidth on the Poisson matrix just used, against a copy of 2 × 256 MB (far larger
     // than the caches, so the memory bandwidth)
     let a = &sim.projection.solver.assembly;
-    let (spmv_gbs, copy_gbs) = spmv_and_copy(a, 1 << 25);
-    let bytes = a.nnz() as f64 * 12.0 + a.n() as f64 * 24.0;
+    let (spmv_gbs, bytes, copy_gbs) = spmv_and_copy(a, 1 << 25);
     Ok(Outcome {
         case: c.clone(),
         stages: names
@@ -401,53 +415,19 @@ fn main_inner(a: Args) -> Result<()> {
                     o.total * 1e3, o.peak_mb, o.poisson_iters, o.spmv_gbs, o.copy_gbs,
                     100.0 * o.spmv_gbs / o.copy_gbs
                 );
+                let key = c.csv_key();
                 writeln!(
                     spmv_csv,
-                    "{},{},{},{},{},{},{:.1},{:.2},{:.2},{:.3}",
-                    c.d,
-                    c.n_particles,
-                    c.frame,
-                    c.solver,
-                    c.reuse,
-                    c.threads,
+                    "{key},{:.1},{:.2},{:.2},{:.3}",
                     o.spmv_mb,
                     o.spmv_gbs,
                     o.copy_gbs,
                     o.spmv_gbs / o.copy_gbs
                 )?;
                 for (stage, s) in &o.stages {
-                    writeln!(
-                        csv,
-                        "{},{},{},{},{},{},{},{:.6e},{:.1}",
-                        c.d,
-                        c.n_particles,
-                        c.frame,
-                        c.solver,
-                        c.reuse,
-                        c.threads,
-                        stage,
-                        s,
-                        o.peak_mb
-                    )?;
+                    writeln!(csv, "{key},{stage},{s:.6e},{:.1}", o.peak_mb)?;
                 }
-                writeln!(
-                    csv,
-                    "{},{},{},{},{},{},total,{:.6e},{:.1}",
-                    c.d, c.n_particles, c.frame, c.solver, c.reuse, c.threads, o.total, o.peak_mb
-                )?;
-                if c.d == 2
-                    && c.n_particles == 10_000
-                    && c.reuse
-                    && c.threads == 2
-                    && c.frame == "fixed"
-                {
-                    println!(
-                        "   SpMV {:.1} GB/s vs stream copy {:.1} GB/s in the same process ({:.0} %)",
-                        o.spmv_gbs,
-                        o.copy_gbs,
-                        100.0 * o.spmv_gbs / o.copy_gbs
-                    );
-                }
+                writeln!(csv, "{key},total,{:.6e},{:.1}", o.total, o.peak_mb)?;
             }
             Err(e) => println!("{:?}: {e:#}", c),
         }

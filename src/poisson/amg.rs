@@ -1232,17 +1232,16 @@ impl Amg {
         // Lanczos steps. Moved particles change `ρ` little (10⁻⁴ per step on a moving 2D 10⁵
         // Taylor–Green, ρ ≈ 1.55, g = 2: kept as it is); in 3D (ρ ≈ 1.33, g = 2) the raise
         // under-relaxes the smoother by 3 %.
-        let rho = if estimate && last > 0.0 {
-            let rho =
-                last.max(self.params.smoother_weight * jacobi_gershgorin(a, &inv_diag) / KEEP_RHO);
-            self.stats.rho[0] = rho;
-            rho
-        } else if estimate {
-            let rho = spectral_radius(a, &inv_diag, self.params.lanczos_steps);
-            self.stats.rho[0] = rho;
-            rho
-        } else {
+        let rho = if !estimate {
             last
+        } else {
+            let rho = if last > 0.0 {
+                last.max(self.params.smoother_weight * jacobi_gershgorin(a, &inv_diag) / KEEP_RHO)
+            } else {
+                spectral_radius(a, &inv_diag, self.params.lanczos_steps)
+            };
+            self.stats.rho[0] = rho;
+            rho
         };
         self.smoothers[0] = Smoother::new(&inv_diag, self.params.smoother_weight, rho);
     }
