@@ -102,10 +102,11 @@ impl<const D: usize> Periodicity<D> {
 /// by index), so the choice changes the run time only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Search {
-    /// A uniform grid of cells of side `≥ h + skin`, the particles bucketed by a counting sort;
-    /// a query scans the `3^D` cells around it. A whole list build (search and measure,
-    /// `cargo bench --bench core -- neighbors`, h = 3Δx lattices): 2D 10⁴ 9.5 vs 12.2 ms,
-    /// 2D 10⁵ 99 vs 127 ms, 3D 3·10⁴ 266 vs 298 ms against the k-d tree.
+    /// A uniform grid of cells of side `≥ h + skin`, the particles bucketed by a counting sort
+    /// (positions copied into cell order); a query scans the rows of cells its ball reaches.
+    /// A whole list build (search and measure, `cargo bench --bench core -- neighbors`,
+    /// h = 3Δx lattices, before the row scan and the kept buffers of 2026-11-27): 2D 10⁴ 9.5
+    /// vs 12.2 ms, 2D 10⁵ 99 vs 127 ms, 3D 3·10⁴ 266 vs 298 ms against the k-d tree.
     #[default]
     CellGrid,
     /// kiddo's immutable k-d tree (the design's crate), queried within `h + skin`.
@@ -214,7 +215,11 @@ pub struct NeighborList<const D: usize> {
     wr2: Vec<f64>,
     cand_offsets: Vec<usize>,
     cand_indices: Vec<u32>,
-    cand_r2: Vec<f64>,
+    /// Per candidate pair: 1 when within `h` at the last measure (pass 1 to pass 2).
+    cand_keep: Vec<u8>,
+    /// The candidate search's per-chunk rows, kept between searches: fresh buffers of this
+    /// size (100 MB in 3D at 10⁵ particles) cost more in page faults than the search itself.
+    search_rows: Vec<(Vec<u32>, Vec<u32>)>,
     x_ref: Vec<[f64; D]>,
     epoch: u64,
     rebuilds: u64,
@@ -258,7 +263,8 @@ impl<const D: usize> NeighborList<D> {
             wr2: Vec::new(),
             cand_offsets: vec![0],
             cand_indices: Vec::new(),
-            cand_r2: Vec::new(),
+            cand_keep: Vec::new(),
+            search_rows: Vec::new(),
             x_ref: Vec::new(),
             epoch: 0,
             rebuilds: 0,
@@ -495,11 +501,9 @@ impl<const D: usize> NeighborList<D> {
                 q
             })
             .collect();
-        let mut offsets = Vec::with_capacity(n + 1);
-        offsets.push(0usize);
-        let mut indices: Vec<u32> = Vec::new();
+        let mut rows = std::mem::take(&mut self.search_rows);
         if n > 0 {
-            let parts = match self.config.search {
+            match self.config.search {
                 Search::KdTree => {
                     let tree: ImmutableKdTree<f64, D> = ImmutableKdTree::new_from_slice(&xw)
                         .map_err(|e| InputError::Parameter {
@@ -508,7 +512,7 @@ impl<const D: usize> NeighborList<D> {
                             reason: format!("k-d tree construction failed: {e:?}"),
                         })?;
                     let init = || tree.create_scratch::<SquaredEuclidean<f64>>();
-                    candidate_rows(n, init, |scratch, i, row| {
+                    candidate_rows(n, &mut rows, init, |scratch, i, row| {
                         for shift in image_shifts(&xw[i], &per, radius) {
                             let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
                             tree.query(&q)
@@ -523,28 +527,44 @@ impl<const D: usize> NeighborList<D> {
                     let grid = CellGrid::new(&xw, radius);
                     candidate_rows(
                         n,
+                        &mut rows,
                         || (),
                         |_, i, row| {
                             for shift in image_shifts(&xw[i], &per, radius) {
                                 let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
-                                grid.within(&xw, &q, r2, |j| row.push(j));
+                                grid.within(&q, r2, |j| row.push(j));
                             }
                         },
                     )
                 }
             };
-            indices.reserve(parts.iter().map(|p| p.1.len()).sum());
-            for (counts, idx) in parts {
-                for c in counts {
-                    let last = *offsets.last().unwrap();
-                    offsets.push(last + c as usize);
-                }
-                indices.extend_from_slice(&idx);
-            }
+        } else {
+            rows.clear();
         }
+        // the rows' offsets, then their indices copied in parallel into the kept buffer
+        let mut offsets = std::mem::take(&mut self.cand_offsets);
+        offsets.clear();
+        offsets.reserve(n + 1);
+        offsets.push(0usize);
+        let mut bounds = Vec::with_capacity(rows.len() + 1);
+        bounds.push(0usize);
+        for (counts, _) in &rows {
+            for &c in counts {
+                offsets.push(offsets.last().unwrap() + c as usize);
+            }
+            bounds.push(*offsets.last().unwrap());
+        }
+        let mut indices = std::mem::take(&mut self.cand_indices);
+        indices.resize(*offsets.last().unwrap(), 0);
+        split_by(&mut indices, &bounds)
+            .into_par_iter()
+            .zip(rows.par_iter())
+            .for_each(|(dst, (_, idx))| dst.copy_from_slice(idx));
+        self.search_rows = rows;
         self.cand_offsets = offsets;
         self.cand_indices = indices;
-        self.x_ref = x.to_vec();
+        self.x_ref.clear();
+        self.x_ref.extend_from_slice(x);
         self.epoch = next_epoch();
         self.rebuilds += 1;
         Ok(())
@@ -564,26 +584,27 @@ impl<const D: usize> NeighborList<D> {
             per.min_image(&mut d);
             d
         };
-        // pass 1: r² of every candidate (kept for pass 2) and the counts per row
-        let mut cand_r2 = std::mem::take(&mut self.cand_r2);
-        cand_r2.resize(ci.len(), 0.0);
+        // pass 1: which candidates are within h (a byte each, for pass 2) and the counts per
+        // row; pass 2 measures the kept pairs again (the same arithmetic: the same bits)
+        let mut keep = std::mem::take(&mut self.cand_keep);
+        keep.resize(ci.len(), 0);
         const RCHUNK: usize = 512;
         let rbounds: Vec<usize> = (0..=n.div_ceil(RCHUNK))
             .map(|c| co[(c * RCHUNK).min(n)])
             .collect();
-        let counts: Vec<Vec<usize>> = split_by(&mut cand_r2, &rbounds)
+        let counts: Vec<Vec<usize>> = split_by(&mut keep, &rbounds)
             .into_par_iter()
             .enumerate()
-            .map(|(c, r2s)| {
+            .map(|(c, flags)| {
                 let base = co[(c * RCHUNK).min(n)];
                 let rows = c * RCHUNK..((c + 1) * RCHUNK).min(n);
                 let mut out = Vec::with_capacity(rows.len());
                 for i in rows {
                     let mut count = 0;
                     for k in co[i]..co[i + 1] {
-                        let rr = norm2(&disp(i, ci[k] as usize));
-                        r2s[k - base] = rr;
-                        count += (rr < h2) as usize;
+                        let inside = norm2(&disp(i, ci[k] as usize)) < h2;
+                        flags[k - base] = inside as u8;
+                        count += inside as usize;
                     }
                     out.push(count);
                 }
@@ -624,29 +645,28 @@ impl<const D: usize> NeighborList<D> {
                 let mut k = 0;
                 let mut bad = None;
                 for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                    let k0 = k;
                     for kc in co[i]..co[i + 1] {
-                        let rr = cand_r2[kc];
-                        if rr < h2 {
+                        if keep[kc] != 0 {
                             let j = ci[kc];
                             let d = disp(i, j as usize);
+                            let rr = norm2(&d);
                             if !(rr > 0.0) && bad.is_none() {
                                 bad = Some((i, j as usize));
                             }
                             idx[k] = j;
                             dxo[k] = d;
                             r2o[k] = rr;
-                            let wv = kernel.w_h(rr.sqrt());
-                            wo[k] = wv;
-                            wr2o[k] = if rr > 0.0 { wv / rr } else { f64::INFINITY };
                             k += 1;
                         }
                     }
+                    kernel.w_and_wr2(&r2o[k0..k], &mut wo[k0..k], &mut wr2o[k0..k]);
                 }
                 bad
             })
             .reduce(|| None, |a, b| a.or(b));
         self.offsets = offsets;
-        self.cand_r2 = cand_r2;
+        self.cand_keep = keep;
         if let Some((i, j)) = coincident {
             return Err(InputError::Coincident {
                 i,
@@ -752,23 +772,23 @@ fn image_shifts<const D: usize>(x: &[f64; D], per: &Periodicity<D>, radius: f64)
     shifts
 }
 
-/// The candidate rows of particles `0..n`, in parallel chunks: `query(scratch, i, row)` pushes
-/// the candidates of `i` (with repeats and `i` itself allowed), which are then sorted,
-/// deduplicated and stripped of `i`; `scratch` is made once per chunk by `init`. Returns (row
-/// lengths, indices) per chunk, in order.
-fn candidate_rows<S, I, Q>(n: usize, init: I, query: Q) -> Vec<(Vec<u32>, Vec<u32>)>
+/// The candidate rows of particles `0..n`, in parallel chunks of `rows` (one per 1024
+/// particles, buffers reused): `query(scratch, i, row)` pushes the candidates of `i` (with
+/// repeats and `i` itself allowed), which are then sorted, deduplicated and stripped of `i`;
+/// `scratch` is made once per chunk by `init`. Each chunk holds (row lengths, indices).
+fn candidate_rows<S, I, Q>(n: usize, rows: &mut Vec<(Vec<u32>, Vec<u32>)>, init: I, query: Q)
 where
     I: Fn() -> S + Sync,
     Q: Fn(&mut S, usize, &mut Vec<u32>) + Sync,
 {
     const CHUNK: usize = 1024;
-    (0..n)
-        .into_par_iter()
-        .step_by(CHUNK)
-        .map(|start| {
-            let end = (start + CHUNK).min(n);
-            let mut counts = Vec::with_capacity(end - start);
-            let mut idx = Vec::with_capacity((end - start) * 32);
+    rows.resize_with(n.div_ceil(CHUNK), Default::default);
+    rows.par_iter_mut()
+        .enumerate()
+        .for_each(|(c, (counts, idx))| {
+            let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+            counts.clear();
+            idx.clear();
             let mut row: Vec<u32> = Vec::with_capacity(64);
             let mut scratch = init();
             for i in start..end {
@@ -780,9 +800,7 @@ where
                 counts.push(row.len() as u32);
                 idx.extend_from_slice(&row);
             }
-            (counts, idx)
-        })
-        .collect()
+        });
 }
 
 /// The smallest and largest coordinate of `x` per axis (`±∞` for no points).
@@ -799,13 +817,20 @@ fn bounding_box<const D: usize>(x: &[[f64; D]]) -> ([f64; D], [f64; D]) {
 }
 
 /// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
-/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`.
+/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c` (in increasing index)
+/// and `xs` holds their positions in the same order, so that a scan reads memory in sequence.
+/// A query scans the rows of cells along axis 0 (contiguous in `items`) whose slab the ball
+/// reaches, each row cut to the ball's chord. Cells of side `radius`: half-radius cells test
+/// fewer points but measured slower (2D 10⁶ particles, h = 3Δx, skin 0.3h: 293 against 256 ms
+/// a search; 3D 10⁵: 193 against 186 ms).
 struct CellGrid<const D: usize> {
     lo: [f64; D],
+    side: f64,
     inv: f64,
     dims: [usize; D],
     start: Vec<u32>,
     items: Vec<u32>,
+    xs: Vec<[f64; D]>,
 }
 
 impl<const D: usize> CellGrid<D> {
@@ -849,52 +874,73 @@ impl<const D: usize> CellGrid<D> {
             items[fill[c as usize] as usize] = i as u32;
             fill[c as usize] += 1;
         }
+        let xs = items.par_iter().map(|&i| x[i as usize]).collect();
         CellGrid {
             lo,
+            side,
             inv,
             dims,
             start,
             items,
+            xs,
         }
     }
 
-    /// Calls `visit(j)` for every point `j` of `x` with `|x_j − q|² ≤ r2`.
-    fn within(&self, x: &[[f64; D]], q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
+    /// The cells `a..=b` along axis `k` that the interval `[c − r, c + r]` overlaps, or `None`
+    /// when it misses the grid.
+    #[inline]
+    fn span(&self, k: usize, c: f64, r: f64) -> Option<(usize, usize)> {
+        let lo = ((c - r - self.lo[k]) * self.inv).floor();
+        let hi = ((c + r - self.lo[k]) * self.inv).floor();
+        if !(hi >= 0.0 && lo <= (self.dims[k] - 1) as f64) {
+            return None;
+        }
+        Some((lo.max(0.0) as usize, (hi as usize).min(self.dims[k] - 1)))
+    }
+
+    /// Calls `visit(j)` for every point `j` with `|x_j − q|² ≤ r2`.
+    fn within(&self, q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
         let r = r2.sqrt();
+        // the rows of cells along axis 0: an odometer over the other axes' cells
         let mut a = [0usize; D];
         let mut b = [0usize; D];
-        for k in 0..D {
-            let lo = ((q[k] - r - self.lo[k]) * self.inv).floor();
-            let hi = ((q[k] + r - self.lo[k]) * self.inv).floor();
-            if hi < 0.0 || lo > (self.dims[k] - 1) as f64 {
-                return;
+        for k in 1..D {
+            match self.span(k, q[k], r) {
+                Some((s, e)) => (a[k], b[k]) = (s, e),
+                None => return,
             }
-            a[k] = lo.max(0.0) as usize;
-            b[k] = (hi as usize).min(self.dims[k] - 1);
         }
-        // odometer over the cells a..=b, axis 0 fastest (the grid's row-major order)
         let mut c = a;
         loop {
-            let mut cell = 0;
-            for k in (0..D).rev() {
-                cell = cell * self.dims[k] + c[k];
+            // the squared distance from q to the row's slab over axes 1..D
+            let mut d2 = 0.0;
+            let mut row = 0;
+            for k in (1..D).rev() {
+                let cl = self.lo[k] + c[k] as f64 * self.side;
+                let t = (cl - q[k]).max(q[k] - cl - self.side).max(0.0);
+                d2 += t * t;
+                row = row * self.dims[k] + c[k];
             }
-            let s = self.start[cell] as usize;
-            let e = self.start[cell + 1] as usize;
-            for &j in &self.items[s..e] {
-                let p = &x[j as usize];
-                let mut d2 = 0.0;
-                for k in 0..D {
-                    let t = p[k] - q[k];
-                    d2 += t * t;
-                }
-                if d2 <= r2 {
-                    visit(j);
+            if d2 <= r2 {
+                if let Some((s0, e0)) = self.span(0, q[0], (r2 - d2).sqrt()) {
+                    let base = row * self.dims[0];
+                    let s = self.start[base + s0] as usize;
+                    let e = self.start[base + e0 + 1] as usize;
+                    for (p, &j) in self.xs[s..e].iter().zip(&self.items[s..e]) {
+                        let mut dd = 0.0;
+                        for k in 0..D {
+                            let t = p[k] - q[k];
+                            dd += t * t;
+                        }
+                        if dd <= r2 {
+                            visit(j);
+                        }
+                    }
                 }
             }
-            let mut k = 0;
+            let mut k = 1;
             loop {
-                if k == D {
+                if k >= D {
                     return;
                 }
                 if c[k] < b[k] {

@@ -297,3 +297,30 @@ fn weight_parse_errors() {
 fn normalisation_rejects_other_dimensions() {
     let _ = Weight::WendlandC2.normalisation(1);
 }
+
+#[test]
+fn the_slice_evaluation_is_w_h_bit_for_bit() {
+    // Kernel::w_and_wr2 (the neighbour list's batched measure) against w_h pair by pair:
+    // w_h(√q) and w_h(√q)/q with ∞ at q = 0, zero beyond h, for every weight in 2D and 3D
+    fn check<const D: usize>(w: Weight) {
+        let h = 0.37;
+        let k = Kernel::<D>::new(w, h);
+        let rr: Vec<f64> = (0..=400)
+            .map(|i| (i as f64 / 333.0 * h).powi(2))
+            .chain([0.0, h * h, f64::MIN_POSITIVE])
+            .collect();
+        let (mut wv, mut wr2) = (vec![f64::NAN; rr.len()], vec![f64::NAN; rr.len()]);
+        k.w_and_wr2(&rr, &mut wv, &mut wr2);
+        for (i, &q) in rr.iter().enumerate() {
+            let want = k.w_h(q.sqrt());
+            assert_eq!(wv[i].to_bits(), want.to_bits(), "{w:?} D={D} q={q:e}");
+            let want_r2 = if q > 0.0 { want / q } else { f64::INFINITY };
+            assert_eq!(wr2[i].to_bits(), want_r2.to_bits(), "{w:?} D={D} q={q:e}");
+        }
+        assert!(wv.iter().zip(&rr).all(|(&v, &q)| q < h * h || v == 0.0));
+    }
+    for w in all_weights() {
+        check::<2>(w);
+        check::<3>(w);
+    }
+}
