@@ -1061,3 +1061,67 @@ fn cg_on_several_right_sides_at_once_equals_cg_on_each() {
         "{err:?}"
     );
 }
+
+#[test]
+fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit() {
+    // K assembled on the pairs within h (a moving run's pattern, rebuilt each step with the
+    // diagonal inserted into the neighbours' sorted row) against K on the candidate pattern
+    // (skin pairs stored as zeros, rows filled by `fill`): the same nonzero entries, the same
+    // bits — on a box with wall images (rows re-sorted) and on a periodic lattice (rows
+    // already sorted)
+    use gpm::neighbors::{NeighborConfig, Periodicity};
+    let periodic = {
+        let n = 20;
+        let dx = 1.0 / n as f64;
+        let mut p = gpm::particles::Particles::<2>::new();
+        for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
+            .into_iter()
+            .enumerate()
+        {
+            let a = 2.1 * k as f64;
+            let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
+            p.push(
+                x,
+                [0.0; 2],
+                0.0,
+                dx * dx * (1.0 + 0.1 * a.cos()),
+                Role::Fluid,
+            );
+        }
+        let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
+            .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
+        let nl = NeighborList::build(config, &p.x).unwrap();
+        (p, nl)
+    };
+    let (walled, walled_nl, _) = walled_box(false);
+    for (name, p, nl) in [
+        ("periodic", &periodic.0, &periodic.1),
+        ("walled", &walled, &walled_nl),
+    ] {
+        let mut within = Assembly::default();
+        within.within_h = true;
+        within.update_poisson(nl, &p.vol, &p.role).unwrap();
+        let mut cand = Assembly::default();
+        cand.within_h = false;
+        cand.update_poisson(nl, &p.vol, &p.role).unwrap();
+        assert_eq!(within.n(), cand.n(), "{name}");
+        assert!(
+            within.nnz() < cand.nnz(),
+            "{name}: the skin pairs are dropped"
+        );
+        for u in 0..within.n() {
+            let a: Vec<(u32, u64)> = (within.offsets[u]..within.offsets[u + 1])
+                .map(|e| (within.cols[e], within.values[e].to_bits()))
+                .collect();
+            let b: Vec<(u32, u64)> = (cand.offsets[u]..cand.offsets[u + 1])
+                .filter(|&e| cand.values[e] != 0.0 || cand.cols[e] as usize == u)
+                .map(|e| (cand.cols[e], cand.values[e].to_bits()))
+                .collect();
+            assert_eq!(a, b, "{name}: row {u}");
+            assert_eq!(
+                within.cols[within.diag[u]] as usize, u,
+                "{name}: diagonal of {u}"
+            );
+        }
+    }
+}

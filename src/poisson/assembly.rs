@@ -396,9 +396,18 @@ impl Assembly {
                             None => dsum += a,
                         }
                     }
-                    row.push((u as u32, dsum + mass * vol[p]));
-                    // stable: duplicates (a source and its images) add in pair order, as in fill
-                    row.sort_by_key(|e| e.0);
+                    // the neighbours come in index order: with unknowns numbered in particle
+                    // order and no images, the row is sorted and the diagonal is inserted in
+                    // place; otherwise a stable sort (duplicates — a source and its images —
+                    // add in pair order, as in fill)
+                    let d = (u as u32, dsum + mass * vol[p]);
+                    if row.is_sorted_by_key(|e| e.0) {
+                        let at = row.partition_point(|e| e.0 <= d.0);
+                        row.insert(at, d);
+                    } else {
+                        row.push(d);
+                        row.sort_by_key(|e| e.0);
+                    }
                     let first = cols.len();
                     for &(c, v) in row.iter() {
                         if cols.len() > first && *cols.last().expect("an entry") == c {
@@ -415,14 +424,32 @@ impl Assembly {
                     diag.push(pos as u32);
                 }
             });
-        let total: usize = parts.iter().map(|p| p.1.len()).sum();
-        self.clear_rows(total);
-        self.values.clear();
-        self.values.reserve(total);
-        for (lens, cols, vals, diag) in &parts {
-            self.append_rows(lens, diag, cols);
-            self.values.extend_from_slice(vals);
+        // offsets and diagonals row by row, the columns and values copied chunk by chunk in
+        // parallel (a serial copy of both was ~30 ms of a 10⁶-particle step)
+        self.offsets.clear();
+        self.offsets.push(0);
+        self.diag.clear();
+        let mut bounds = Vec::with_capacity(parts.len() + 1);
+        bounds.push(0usize);
+        for (lens, _, _, diag) in &parts {
+            for (&len, &pos) in lens.iter().zip(diag) {
+                let base = *self.offsets.last().expect("offsets start at 0");
+                self.diag.push(base + pos as usize);
+                self.offsets.push(base + len as usize);
+            }
+            bounds.push(*self.offsets.last().expect("offsets start at 0"));
         }
+        let total = *bounds.last().expect("one bound");
+        self.cols.resize(total, 0);
+        self.values.resize(total, 0.0);
+        split_by(&mut self.cols, &bounds)
+            .into_par_iter()
+            .zip(split_by(&mut self.values, &bounds))
+            .zip(parts.par_iter())
+            .for_each(|((c, v), (_, cols, vals, _))| {
+                c.copy_from_slice(cols);
+                v.copy_from_slice(vals);
+            });
         self.chunks.0 = parts;
         self.key = Some(key);
         self.pattern_id += 1;
