@@ -69,3 +69,90 @@ pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
         rayon::scope(|_| f())
     }
 }
+
+/// `Σ_k values[k] x[cols[k]]`, one row of a sparse product: four partial sums over the entries
+/// in turn (entry `k` into sum `k mod 4`), added as `(s0 + s1) + (s2 + s3)`, then the last
+/// `len mod 4` entries in order. Four independent chains instead of one: a 3D Poisson row
+/// (≈ 110 entries) is otherwise bound by the latency of its additions (stream bandwidth of the
+/// product 34 → 38–51 GB/s at 3D 10⁵; 2D rows of ≈ 27 entries gain little). Deterministic: the
+/// order depends on the row only, not on threads.
+#[inline]
+pub fn sparse_dot(values: &[f64], cols: &[u32], x: &[f64]) -> f64 {
+    let (vc, vr) = values.as_chunks::<4>();
+    let (cc, cr) = cols[..values.len()].as_chunks::<4>();
+    let mut acc = [0.0f64; 4];
+    for (v, c) in vc.iter().zip(cc) {
+        for t in 0..4 {
+            acc[t] += v[t] * x[c[t] as usize];
+        }
+    }
+    let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (v, &c) in vr.iter().zip(cr) {
+        s += v * x[c as usize];
+    }
+    s
+}
+
+/// [`sparse_dot`] of `K` columns at once (`x[j][c]`): each column's sum grouped exactly as
+/// `sparse_dot` groups it, so that a product of several right sides gives the bits of one.
+#[inline]
+pub fn sparse_dot_multi<const K: usize>(values: &[f64], cols: &[u32], x: &[[f64; K]]) -> [f64; K] {
+    let (vc, vr) = values.as_chunks::<4>();
+    let (cc, cr) = cols[..values.len()].as_chunks::<4>();
+    let mut acc = [[0.0f64; K]; 4];
+    for (v, c) in vc.iter().zip(cc) {
+        for t in 0..4 {
+            let xj = &x[c[t] as usize];
+            for k in 0..K {
+                acc[t][k] += v[t] * xj[k];
+            }
+        }
+    }
+    let mut s: [f64; K] =
+        std::array::from_fn(|k| (acc[0][k] + acc[1][k]) + (acc[2][k] + acc[3][k]));
+    for (v, &c) in vr.iter().zip(cr) {
+        let xj = &x[c as usize];
+        for k in 0..K {
+            s[k] += v * xj[k];
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod sparse_tests {
+    use super::{sparse_dot, sparse_dot_multi};
+
+    #[test]
+    fn the_partial_sums_follow_the_documented_grouping_and_the_columns_agree() {
+        let x: Vec<[f64; 3]> = (0..40)
+            .map(|j| {
+                let t = j as f64;
+                [(0.7 * t).sin(), 1.0 + (0.3 * t).cos(), -0.5 * t]
+            })
+            .collect();
+        for len in 0..14 {
+            let values: Vec<f64> = (0..len).map(|k| 1.0 / (k as f64 + 1.3)).collect();
+            let cols: Vec<u32> = (0..len).map(|k| ((7 * k + 3) % 40) as u32).collect();
+            for c in 0..3 {
+                let xc: Vec<f64> = x.iter().map(|v| v[c]).collect();
+                // the documented grouping, written out
+                let mut acc = [0.0; 4];
+                let full = len / 4 * 4;
+                for k in 0..full {
+                    acc[k % 4] += values[k] * xc[cols[k] as usize];
+                }
+                let mut want = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+                for k in full..len {
+                    want += values[k] * xc[cols[k] as usize];
+                }
+                let got = sparse_dot(&values, &cols, &xc);
+                assert_eq!(got.to_bits(), want.to_bits(), "len {len} column {c}");
+                let multi = sparse_dot_multi(&values, &cols, &x);
+                assert_eq!(multi[c].to_bits(), got.to_bits(), "len {len} column {c}");
+                let naive: f64 = (0..len).map(|k| values[k] * xc[cols[k] as usize]).sum();
+                assert!((got - naive).abs() <= 1e-14 * (1.0 + naive.abs()));
+            }
+        }
+    }
+}

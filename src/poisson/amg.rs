@@ -130,11 +130,8 @@ impl CsrRef<'_> {
     }
     #[inline]
     fn row_dot(&self, i: usize, x: &[f64]) -> f64 {
-        let mut s = 0.0;
-        for k in self.offsets[i]..self.offsets[i + 1] {
-            s += self.values[k] * x[self.cols[k] as usize];
-        }
-        s
+        let (cols, values) = self.row(i);
+        crate::math::sparse_dot(values, cols, x)
     }
     /// The diagonal (zero where a row stores none).
     pub fn diagonal(&self) -> Vec<f64> {
@@ -1314,9 +1311,10 @@ impl Amg {
                 .for_each(|(i, (ri, xi))| {
                     *xi = s[i] * bl[i];
                     let mut acc = 0.0;
-                    for k in al.offsets[i]..al.offsets[i + 1] {
-                        let j = al.cols[k] as usize;
-                        acc += al.values[k] * s[j] * bl[j];
+                    let (cols, values) = al.row(i);
+                    for (v, &j) in values.iter().zip(cols) {
+                        let j = j as usize;
+                        acc += v * s[j] * bl[j];
                     }
                     *ri = bl[i] - acc;
                 });

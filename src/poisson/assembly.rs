@@ -596,13 +596,21 @@ impl Assembly {
         y.par_iter_mut()
             .with_min_len(1024)
             .enumerate()
-            .for_each(|(u, yu)| {
-                let mut s = 0.0;
-                for k in self.offsets[u]..self.offsets[u + 1] {
-                    s += self.values[k] * x[self.cols[k] as usize];
-                }
-                *yu = s;
-            });
+            .for_each(|(u, yu)| *yu = self.row_dot(u, x));
+    }
+
+    /// Row `u`: its columns and values.
+    #[inline]
+    pub fn row(&self, u: usize) -> (&[u32], &[f64]) {
+        let r = self.offsets[u]..self.offsets[u + 1];
+        (&self.cols[r.clone()], &self.values[r])
+    }
+
+    /// `(K x)_u` ([`crate::math::sparse_dot`]: four partial sums over the row's slices).
+    #[inline]
+    pub fn row_dot(&self, u: usize, x: &[f64]) -> f64 {
+        let (cols, values) = self.row(u);
+        crate::math::sparse_dot(values, cols, x)
     }
 
     /// The diagonal of `K`.

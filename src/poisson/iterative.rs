@@ -147,13 +147,8 @@ fn matvec_dot_multi<const K: usize>(a: &Assembly, p: &[[f64; K]], q: &mut [[f64;
         .with_max_len(MIN_LEN)
         .enumerate()
         .map(|(u, qu)| {
-            let mut s = [0.0; K];
-            for k in a.offsets[u]..a.offsets[u + 1] {
-                let (v, pc) = (a.values[k], &p[a.cols[k] as usize]);
-                for c in 0..K {
-                    s[c] += v * pc[c];
-                }
-            }
+            let (cols, values) = a.row(u);
+            let s = crate::math::sparse_dot_multi(values, cols, p);
             *qu = s;
             std::array::from_fn(|c| s[c] * p[u][c])
         })
@@ -167,13 +162,8 @@ fn true_residuals<const K: usize>(a: &Assembly, b: &[&[f64]; K], x: &[[f64; K]])
         .with_min_len(MIN_LEN)
         .with_max_len(MIN_LEN)
         .map(|u| {
-            let mut kx = [0.0; K];
-            for k in a.offsets[u]..a.offsets[u + 1] {
-                let (v, xc) = (a.values[k], &x[a.cols[k] as usize]);
-                for c in 0..K {
-                    kx[c] += v * xc[c];
-                }
-            }
+            let (cols, values) = a.row(u);
+            let kx = crate::math::sparse_dot_multi(values, cols, x);
             std::array::from_fn(|c| (b[c][u] - kx[c]).powi(2))
         })
         .reduce(|| [0.0; K], |x, y| std::array::from_fn(|c| x[c] + y[c]));
@@ -375,10 +365,7 @@ fn matvec_dot(a: &Assembly, p: &[f64], q: &mut [f64]) -> f64 {
         .with_max_len(MIN_LEN)
         .enumerate()
         .map(|(u, qu)| {
-            let mut s = 0.0;
-            for k in a.offsets[u]..a.offsets[u + 1] {
-                s += a.values[k] * p[a.cols[k] as usize];
-            }
+            let s = a.row_dot(u, p);
             *qu = s;
             s * p[u]
         })
