@@ -102,11 +102,11 @@ impl<const D: usize> Periodicity<D> {
 /// by index), so the choice changes the run time only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Search {
-    /// A uniform grid of cells of side `≥ h + skin`, the particles bucketed by a counting sort
-    /// (positions copied into cell order); a query scans the rows of cells its ball reaches.
-    /// A whole list build (search and measure, `cargo bench --bench core -- neighbors`,
-    /// h = 3Δx lattices, before the row scan and the kept buffers of 2026-11-27): 2D 10⁴ 9.5
-    /// vs 12.2 ms, 2D 10⁵ 99 vs 127 ms, 3D 3·10⁴ 266 vs 298 ms against the k-d tree.
+    /// A uniform grid of cells of side `≥ h + skin`, the particles bucketed by a counting sort;
+    /// a query scans the `3^D` cells around it. A whole list build (search and measure,
+    /// `cargo bench --bench core -- neighbors`, h = 3Δx lattices, before the kept buffers of
+    /// 2026-11-27): 2D 10⁴ 9.5 vs 12.2 ms, 2D 10⁵ 99 vs 127 ms, 3D 3·10⁴ 266 vs 298 ms against
+    /// the k-d tree.
     #[default]
     CellGrid,
     /// kiddo's immutable k-d tree (the design's crate), queried within `h + skin`.
@@ -491,7 +491,12 @@ impl<const D: usize> NeighborList<D> {
     fn search(&mut self, x: &[[f64; D]]) -> Result<(), InputError> {
         let n = x.len();
         let per = self.config.periodic;
-        let radius = self.config.h + self.config.skin;
+        // a relative 10⁻⁹ wider than `h + skin`: the candidates are then a superset of the
+        // pairs the measure keeps (`r² < h²` by the minimum image, the same from both ends)
+        // even where the search's own arithmetic (wrapped positions, image shifts) rounds a
+        // pair at exactly `h + skin` — a lattice with `h` a whole number of spacings across a
+        // periodic face — the other way; otherwise such a pair could be found from one end only
+        let radius = (self.config.h + self.config.skin) * (1.0 + 1e-9);
         let r2 = radius * radius;
         let xw: Vec<[f64; D]> = x
             .par_iter()
@@ -532,7 +537,7 @@ impl<const D: usize> NeighborList<D> {
                         |_, i, row| {
                             for shift in image_shifts(&xw[i], &per, radius) {
                                 let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
-                                grid.within(&q, r2, |j| row.push(j));
+                                grid.within(&xw, &q, r2, |j| row.push(j));
                             }
                         },
                     )
@@ -817,20 +822,13 @@ fn bounding_box<const D: usize>(x: &[[f64; D]]) -> ([f64; D], [f64; D]) {
 }
 
 /// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
-/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c` (in increasing index)
-/// and `xs` holds their positions in the same order, so that a scan reads memory in sequence.
-/// A query scans the rows of cells along axis 0 (contiguous in `items`) whose slab the ball
-/// reaches, each row cut to the ball's chord. Cells of side `radius`: half-radius cells test
-/// fewer points but measured slower (2D 10⁶ particles, h = 3Δx, skin 0.3h: 293 against 256 ms
-/// a search; 3D 10⁵: 193 against 186 ms).
+/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`.
 struct CellGrid<const D: usize> {
     lo: [f64; D],
-    side: f64,
     inv: f64,
     dims: [usize; D],
     start: Vec<u32>,
     items: Vec<u32>,
-    xs: Vec<[f64; D]>,
 }
 
 impl<const D: usize> CellGrid<D> {
@@ -874,73 +872,52 @@ impl<const D: usize> CellGrid<D> {
             items[fill[c as usize] as usize] = i as u32;
             fill[c as usize] += 1;
         }
-        let xs = items.par_iter().map(|&i| x[i as usize]).collect();
         CellGrid {
             lo,
-            side,
             inv,
             dims,
             start,
             items,
-            xs,
         }
     }
 
-    /// The cells `a..=b` along axis `k` that the interval `[c − r, c + r]` overlaps, or `None`
-    /// when it misses the grid.
-    #[inline]
-    fn span(&self, k: usize, c: f64, r: f64) -> Option<(usize, usize)> {
-        let lo = ((c - r - self.lo[k]) * self.inv).floor();
-        let hi = ((c + r - self.lo[k]) * self.inv).floor();
-        if !(hi >= 0.0 && lo <= (self.dims[k] - 1) as f64) {
-            return None;
-        }
-        Some((lo.max(0.0) as usize, (hi as usize).min(self.dims[k] - 1)))
-    }
-
-    /// Calls `visit(j)` for every point `j` with `|x_j − q|² ≤ r2`.
-    fn within(&self, q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
+    /// Calls `visit(j)` for every point `j` of `x` with `|x_j − q|² ≤ r2`.
+    fn within(&self, x: &[[f64; D]], q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
         let r = r2.sqrt();
-        // the rows of cells along axis 0: an odometer over the other axes' cells
         let mut a = [0usize; D];
         let mut b = [0usize; D];
-        for k in 1..D {
-            match self.span(k, q[k], r) {
-                Some((s, e)) => (a[k], b[k]) = (s, e),
-                None => return,
+        for k in 0..D {
+            let lo = ((q[k] - r - self.lo[k]) * self.inv).floor();
+            let hi = ((q[k] + r - self.lo[k]) * self.inv).floor();
+            if hi < 0.0 || lo > (self.dims[k] - 1) as f64 {
+                return;
             }
+            a[k] = lo.max(0.0) as usize;
+            b[k] = (hi as usize).min(self.dims[k] - 1);
         }
+        // odometer over the cells a..=b, axis 0 fastest (the grid's row-major order)
         let mut c = a;
         loop {
-            // the squared distance from q to the row's slab over axes 1..D
-            let mut d2 = 0.0;
-            let mut row = 0;
-            for k in (1..D).rev() {
-                let cl = self.lo[k] + c[k] as f64 * self.side;
-                let t = (cl - q[k]).max(q[k] - cl - self.side).max(0.0);
-                d2 += t * t;
-                row = row * self.dims[k] + c[k];
+            let mut cell = 0;
+            for k in (0..D).rev() {
+                cell = cell * self.dims[k] + c[k];
             }
-            if d2 <= r2 {
-                if let Some((s0, e0)) = self.span(0, q[0], (r2 - d2).sqrt()) {
-                    let base = row * self.dims[0];
-                    let s = self.start[base + s0] as usize;
-                    let e = self.start[base + e0 + 1] as usize;
-                    for (p, &j) in self.xs[s..e].iter().zip(&self.items[s..e]) {
-                        let mut dd = 0.0;
-                        for k in 0..D {
-                            let t = p[k] - q[k];
-                            dd += t * t;
-                        }
-                        if dd <= r2 {
-                            visit(j);
-                        }
-                    }
+            let s = self.start[cell] as usize;
+            let e = self.start[cell + 1] as usize;
+            for &j in &self.items[s..e] {
+                let p = &x[j as usize];
+                let mut d2 = 0.0;
+                for k in 0..D {
+                    let t = p[k] - q[k];
+                    d2 += t * t;
+                }
+                if d2 <= r2 {
+                    visit(j);
                 }
             }
-            let mut k = 1;
+            let mut k = 0;
             loop {
-                if k >= D {
+                if k == D {
                     return;
                 }
                 if c[k] < b[k] {

@@ -615,3 +615,35 @@ fn the_list_records_the_positions_it_measured() {
     nl.update(&y).unwrap();
     assert_eq!(nl.measured_at(), positions_hash(&y));
 }
+
+#[test]
+fn periodic_lattices_with_pairs_at_exactly_h_give_a_symmetric_list() {
+    // h a whole number of spacings puts pairs at exactly h (up to rounding) across the periodic
+    // faces: whichever way the rounding decides, both ends of a pair must agree, for every
+    // search, with and without a skin (a search that pruned cells by a rounded chord once
+    // dropped such a pair from one end: `scale_pair_weights` then found no reverse pair)
+    fn check<const D: usize>(n: usize, h_over_dx: f64, skin: f64) {
+        let dx = 1.0 / n as f64;
+        let x = gpm::geometry::lattice([0.0; D], [1.0; D], dx);
+        let cfg = NeighborConfig::new_relative(Weight::WendlandC2, dx, h_over_dx, skin)
+            .with_periodicity(Periodicity::all([0.0; D], [1.0; D]));
+        let want = reference(&cfg, &x);
+        for search in SEARCHES {
+            let nl = NeighborList::build(cfg.with_search(search), &x).unwrap();
+            let what = format!("{D}D n={n} h={h_over_dx}Δx skin={skin} {search:?}");
+            assert_same(&nl, &want, &what);
+            assert_symmetric(&nl);
+        }
+    }
+    for n in [10, 11, 13, 16] {
+        for h in [2.0, 2.5, 3.0] {
+            for skin in [0.0, 0.3] {
+                check::<2>(n, h, skin);
+            }
+        }
+    }
+    check::<3>(7, 2.0, 0.0);
+    check::<3>(9, 2.0, 0.3);
+    check::<3>(9, 3.0, 0.3);
+    check::<3>(10, 3.0, 0.0);
+}
