@@ -3,7 +3,7 @@
 //!
 //! * [`OutputLock`]: an exclusive advisory lock (`flock`/`LockFileEx` through
 //!   [`std::fs::File::try_lock`]) on `DIR/.gpm.lock`, holding the owner's process id. A second
-//!   run into the same directory fails at once with [`RecordError::Locked`] naming the holder.
+//!   run into the same directory fails at once (after 0.1 s of retries) with [`RecordError::Locked`] naming the holder.
 //!   The lock ends with the process (also when it is killed), so a stale lock file is harmless;
 //!   the file itself is left in place (removing it would let a third run lock a new file while a
 //!   second still holds the old one).
@@ -32,8 +32,8 @@ pub struct OutputLock {
 
 impl OutputLock {
     /// Locks `dir` (which must exist) for this process: creates or opens `dir/.gpm.lock`, takes
-    /// an exclusive lock without waiting and writes this process's id into it. Another holder
-    /// is a [`RecordError::Locked`] naming its process id.
+    /// an exclusive lock (tried for up to 0.1 s) and writes this process's id into it. Another
+    /// holder is a [`RecordError::Locked`] naming its process id.
     pub fn acquire(dir: &Path) -> Result<OutputLock, RecordError> {
         let path = dir.join(LOCK_FILE);
         let mut file = OpenOptions::new()
@@ -43,17 +43,29 @@ impl OutputLock {
             .truncate(false)
             .open(&path)
             .map_err(|e| RecordError::io(&path, e))?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(TryLockError::WouldBlock) => {
-                let mut text = String::new();
-                let _ = file.read_to_string(&mut text);
-                return Err(RecordError::Locked {
-                    holder: text.trim().parse().ok(),
-                    path,
-                });
+        // A child process another thread is starting holds a copy of every open file, this
+        // lock's included, from its fork until its exec closes it: a lock this process has
+        // just released can look held for that moment (seen in the tests, which start `gpm`
+        // processes beside recordings). So a held lock is tried again for up to 0.1 s
+        // before its holder is reported.
+        let mut attempts = 0;
+        loop {
+            match file.try_lock() {
+                Ok(()) => break,
+                Err(TryLockError::WouldBlock) if attempts < 20 => {
+                    attempts += 1;
+                    std::thread::sleep(std::time::Duration::from_millis(5));
+                }
+                Err(TryLockError::WouldBlock) => {
+                    let mut text = String::new();
+                    let _ = file.read_to_string(&mut text);
+                    return Err(RecordError::Locked {
+                        holder: text.trim().parse().ok(),
+                        path,
+                    });
+                }
+                Err(TryLockError::Error(e)) => return Err(RecordError::io(&path, e)),
             }
-            Err(TryLockError::Error(e)) => return Err(RecordError::io(&path, e)),
         }
         let pid = std::process::id();
         file.set_len(0)
