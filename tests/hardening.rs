@@ -577,10 +577,11 @@ fn cli_configuration_threads_and_estimates_are_checked() {
 fn cli_second_run_into_one_directory_fails_at_once_naming_the_holder() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().to_str().unwrap();
-    // the first run takes a few seconds
+    // the first run takes a few seconds (n = 64 to t = 8: 4.5 s on 2026-11-27; n = 24 to t = 3
+    // had come down to 0.2 s, short enough to end while the second run was starting)
     let mut first = Command::new(gpm_bin())
         .args([
-            "run", "cavity", "--n", "24", "--t-end", "3", "--quiet", "--out", out,
+            "run", "cavity", "--n", "64", "--t-end", "8", "--quiet", "--out", out,
         ])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
