@@ -560,7 +560,8 @@ pub fn ls_gradient_laplacian<const D: usize>(
 const MAX_Q: usize = 9;
 
 /// [`quadratic_basis`] into the first [`n_quadratic`]`(D)` entries of a stack array.
-fn quadratic_basis_into<const D: usize>(z: &[f64; D], p: &mut [f64; MAX_Q]) {
+#[inline(always)]
+fn quadratic_basis_into<const D: usize, const M: usize>(z: &[f64; D], p: &mut [f64; M]) {
     for a in 0..D {
         p[a] = z[a];
         p[D + a] = 0.5 * z[a] * z[a];
@@ -574,50 +575,50 @@ fn quadratic_basis_into<const D: usize>(z: &[f64; D], p: &mut [f64; MAX_Q]) {
     }
 }
 
-/// The inverse of the `m × m` matrix `a` (row-major, `m ≤ MAX_Q`) into `inv` by Gauss–Jordan
-/// elimination with partial pivoting; false when a pivot is zero or the result not finite.
-fn invert_small(a: &[f64; MAX_Q * MAX_Q], m: usize, inv: &mut [f64; MAX_Q * MAX_Q]) -> bool {
+/// The inverse of the `M × M` matrix `a` into `inv` by Gauss–Jordan elimination with partial
+/// pivoting; false when a pivot is zero or the result not finite. `M` is a constant so that the
+/// loops unroll (see [`ls_rows`]).
+fn invert_small<const M: usize>(a: &[[f64; M]; M], inv: &mut [[f64; M]; M]) -> bool {
     let mut w = *a;
-    inv.fill(0.0);
-    for r in 0..m {
-        inv[r * m + r] = 1.0;
+    *inv = [[0.0; M]; M];
+    for (r, row) in inv.iter_mut().enumerate() {
+        row[r] = 1.0;
     }
-    for col in 0..m {
-        let piv = (col..m)
-            .max_by(|&x, &y| w[x * m + col].abs().total_cmp(&w[y * m + col].abs()))
+    for col in 0..M {
+        let piv = (col..M)
+            .max_by(|&x, &y| w[x][col].abs().total_cmp(&w[y][col].abs()))
             .unwrap_or(col);
-        if w[piv * m + col] == 0.0 {
+        if w[piv][col] == 0.0 {
             return false;
         }
         if piv != col {
-            for c in 0..m {
-                w.swap(piv * m + c, col * m + c);
-                inv.swap(piv * m + c, col * m + c);
-            }
+            w.swap(piv, col);
+            inv.swap(piv, col);
         }
-        let d = 1.0 / w[col * m + col];
-        for c in 0..m {
-            w[col * m + c] *= d;
-            inv[col * m + c] *= d;
+        let d = 1.0 / w[col][col];
+        for c in 0..M {
+            w[col][c] *= d;
+            inv[col][c] *= d;
         }
-        for r in 0..m {
+        let (wc, ic) = (w[col], inv[col]);
+        for r in 0..M {
             if r != col {
-                let f = w[r * m + col];
+                let f = w[r][col];
                 if f != 0.0 {
-                    for c in 0..m {
-                        w[r * m + c] -= f * w[col * m + c];
-                        inv[r * m + c] -= f * inv[col * m + c];
+                    for c in 0..M {
+                        w[r][c] -= f * wc[c];
+                        inv[r][c] -= f * ic[c];
                     }
                 }
             }
         }
     }
-    inv[..m * m].iter().all(|v| v.is_finite())
+    inv.iter().flatten().all(|v| v.is_finite())
 }
 
 fn quadratic_basis<const D: usize>(z: &[f64; D], p: &mut DVector<f64>) {
     let mut q = [0.0; MAX_Q];
-    quadratic_basis_into(z, &mut q);
+    quadratic_basis_into::<D, MAX_Q>(z, &mut q);
     let m = n_quadratic(D);
     p.as_mut_slice()[..m].copy_from_slice(&q[..m]);
 }
@@ -872,6 +873,99 @@ pub struct LsOperators<const D: usize> {
     key: Option<RenormKey>,
 }
 
+/// The coefficients of [`LsOperators`] for each `(row, its pair range of the coefficient array)`
+/// of `slices`: `point(k, j)` is pair `k`'s fit point (relative position and weight), a row for
+/// which `copied` names a donor takes the donor's coefficients. Returns the rows that got the
+/// GPM coefficients (an ill-posed fit). `M` = [`n_quadratic`]`(D)`, a constant so that the
+/// normal matrix, its inverse and the per-pair products live in fixed-size arrays whose loops
+/// unroll (2D 10⁵ jittered particles, 2.6 M pairs: 33 → 19 ms per update on two threads,
+/// the same bits).
+fn ls_rows<'a, const D: usize, const M: usize>(
+    slices: Vec<(usize, &mut [f64])>,
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    point: &(impl Fn(usize, usize) -> ([f64; D], f64) + Sync),
+    copied: &(impl Fn(usize) -> Option<&'a LsOperators<D>> + Sync),
+    hinv: f64,
+) -> Vec<usize> {
+    let s = D + 1;
+    let hinv2 = hinv * hinv;
+    let d = D as f64;
+    slices
+        .into_par_iter()
+        .with_min_len(64)
+        .map_init(Vec::new, |fit: &mut Vec<([f64; M], f64)>, (i, out)| {
+            let start = nl.row(i).start;
+            if let Some(dn) = copied(i) {
+                out.copy_from_slice(&dn.coef[start * s..nl.row(i).end * s]);
+                return dn.fallback_rows.binary_search(&i).ok().map(|_| i);
+            }
+            // the basis and weight of each fit point, computed once per row; the normal
+            // matrix and its inverse on the stack (a dynamic nalgebra matrix per row made this
+            // loop 2-3x slower, the step's largest item on moving particles)
+            fit.clear();
+            let mut a = [[0.0; M]; M];
+            for k in nl.row(i) {
+                let (dk, wk) = point(k, nl.indices()[k] as usize);
+                let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
+                let mut p = [0.0; M];
+                quadratic_basis_into(&z, &mut p);
+                for r in 0..M {
+                    let wr = wk * p[r];
+                    for c in r..M {
+                        a[r][c] += wr * p[c];
+                    }
+                }
+                fit.push((p, wk));
+            }
+            for r in 0..M {
+                for c in 0..r {
+                    a[r][c] = a[c][r];
+                }
+            }
+            // a well-posed fit: the normal matrix is regular and not too ill-conditioned
+            let mut inv = [[0.0; M]; M];
+            let ok = invert_small(&a, &mut inv) && {
+                let na = a.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
+                let ni = inv.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
+                na * ni < LS_MAX_CONDITION
+            };
+            if ok {
+                // the rows of A⁻¹ that are used: the first derivatives, and the sum of the
+                // Hessian's diagonal rows (the Laplacian)
+                let mut lap = [0.0; M];
+                for c in 0..D {
+                    for (l, v) in lap.iter_mut().zip(&inv[D + c]) {
+                        *l += v;
+                    }
+                }
+                for (o, (p, wk)) in out.chunks_exact_mut(s).zip(fit.iter()) {
+                    let dot = |row: &[f64; M]| -> f64 {
+                        row.iter().zip(p).map(|(x, q)| x * q).sum::<f64>()
+                    };
+                    for c in 0..D {
+                        o[c] = wk * dot(&inv[c]) * hinv;
+                    }
+                    o[D] = wk * dot(&lap) * hinv2;
+                }
+                None
+            } else {
+                for k in nl.row(i) {
+                    let j = nl.indices()[k] as usize;
+                    let f = vol[j] * nl.wr2()[k];
+                    let o = &mut out[(k - start) * s..(k - start + 1) * s];
+                    for c in 0..D {
+                        o[c] = d * f * nl.dx()[k][c];
+                    }
+                    o[D] = 2.0 * d * f;
+                }
+                Some(i)
+            }
+        })
+        .flatten()
+        .collect()
+}
+
 impl<const D: usize> LsOperators<D> {
     const S: usize = D + 1;
 
@@ -937,10 +1031,9 @@ impl<const D: usize> LsOperators<D> {
             "least-squares operators are defined up to 3 dimensions"
         );
         let hinv = 1.0 / nl.h();
-        let hinv2 = hinv * hinv;
-        let d = D as f64;
         let end = if rows == 0 { 0 } else { nl.row(rows - 1).end };
-        self.coef.clear();
+        // every entry is written below (each row's range, the rows covering `0..end`): only a
+        // longer array needs new entries, not a zero fill of the whole (62 MB at 2D 10⁵)
         self.coef.resize(end * Self::S, 0.0);
         // the wall variant's fit points: a ghost g of source s stands for (x_g + x_s)/2
         self.partner.clear();
@@ -1009,80 +1102,12 @@ impl<const D: usize> LsOperators<D> {
             rest = tail;
             at = r.end;
         }
-        let fallback: Vec<usize> = slices
-            .into_par_iter()
-            .with_min_len(64)
-            .map_init(Vec::new, |fit: &mut Vec<([f64; MAX_Q], f64)>, (i, out)| {
-                let start = nl.row(i).start;
-                if let Some(dn) = copied(i) {
-                    out.copy_from_slice(&dn.coef[start * Self::S..nl.row(i).end * Self::S]);
-                    return dn.fallback_rows.binary_search(&i).ok().map(|_| i);
-                }
-                // the basis and weight of each fit point, computed once per row; the normal
-                // matrix and its inverse on the stack (m ≤ 9; a dynamic nalgebra matrix per
-                // row made this loop 2-3x slower, the step's largest item on moving
-                // particles)
-                fit.clear();
-                let mut a = [0.0; MAX_Q * MAX_Q];
-                let mut inv = [0.0; MAX_Q * MAX_Q];
-                for k in nl.row(i) {
-                    let (dk, wk) = point(k, nl.indices()[k] as usize);
-                    let z: [f64; D] = std::array::from_fn(|c| dk[c] * hinv);
-                    let mut p = [0.0; MAX_Q];
-                    quadratic_basis_into(&z, &mut p);
-                    for r in 0..m {
-                        let wr = wk * p[r];
-                        for c in r..m {
-                            a[r * m + c] += wr * p[c];
-                        }
-                    }
-                    fit.push((p, wk));
-                }
-                for r in 0..m {
-                    for c in 0..r {
-                        a[r * m + c] = a[c * m + r];
-                    }
-                }
-                // a well-posed fit: the normal matrix is regular and not too ill-conditioned
-                let ok = invert_small(&a, m, &mut inv) && {
-                    let na = a[..m * m].iter().map(|v| v.abs()).fold(0.0, f64::max);
-                    let ni = inv[..m * m].iter().map(|v| v.abs()).fold(0.0, f64::max);
-                    na * ni < LS_MAX_CONDITION
-                };
-                if ok {
-                    // the rows of A⁻¹ that are used: the first derivatives, and the sum of
-                    // the Hessian's diagonal rows (the Laplacian)
-                    let mut lap = [0.0; MAX_Q];
-                    for c in 0..D {
-                        for (l, v) in lap[..m].iter_mut().zip(&inv[(D + c) * m..(D + c + 1) * m]) {
-                            *l += v;
-                        }
-                    }
-                    for (o, (p, wk)) in out.chunks_exact_mut(Self::S).zip(fit.iter()) {
-                        let dot = |row: &[f64]| -> f64 {
-                            row.iter().zip(&p[..m]).map(|(x, q)| x * q).sum::<f64>()
-                        };
-                        for c in 0..D {
-                            o[c] = wk * dot(&inv[c * m..c * m + m]) * hinv;
-                        }
-                        o[D] = wk * dot(&lap[..m]) * hinv2;
-                    }
-                    None
-                } else {
-                    for k in nl.row(i) {
-                        let j = nl.indices()[k] as usize;
-                        let f = vol[j] * nl.wr2()[k];
-                        let o = &mut out[(k - start) * Self::S..(k - start + 1) * Self::S];
-                        for c in 0..D {
-                            o[c] = d * f * nl.dx()[k][c];
-                        }
-                        o[D] = 2.0 * d * f;
-                    }
-                    Some(i)
-                }
-            })
-            .flatten()
-            .collect();
+        let fallback = match m {
+            2 => ls_rows::<D, 2>(slices, nl, vol, &point, &copied, hinv),
+            5 => ls_rows::<D, 5>(slices, nl, vol, &point, &copied, hinv),
+            9 => ls_rows::<D, 9>(slices, nl, vol, &point, &copied, hinv),
+            _ => unreachable!("quadratic bases have 2, 5 or 9 terms"),
+        };
         self.fallback_rows = fallback;
         self.key = Some(key);
         true
