@@ -95,6 +95,8 @@ pub fn sparse_dot(values: &[f64], cols: &[u32], x: &[f64]) -> f64 {
 
 /// [`sparse_dot`] of `K` columns at once (`x[j][c]`): each column's sum grouped exactly as
 /// `sparse_dot` groups it, so that a product of several right sides gives the bits of one.
+/// (`sparse_dot` is not this with `K = 1`: that build's products were slower, 3D 10⁵ SpMV
+/// 39–42 against 47–49 GB/s.)
 #[inline]
 pub fn sparse_dot_multi<const K: usize>(values: &[f64], cols: &[u32], x: &[[f64; K]]) -> [f64; K] {
     let (vc, vr) = values.as_chunks::<4>();

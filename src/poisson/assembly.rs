@@ -93,6 +93,21 @@ fn row_chunks<'a>(offsets: &[usize], values: &'a mut [f64]) -> Vec<&'a mut [f64]
     split_by(values, &bounds)
 }
 
+/// `dst` resized to `bounds`' last entry and filled with `parts` (part `c` into
+/// `bounds[c]..bounds[c + 1]`), the parts copied in parallel (a serial copy of a pattern's
+/// columns and values was ~30 ms of a 10⁶-particle step).
+fn gather_parts<T: Copy + Default + Send + Sync>(
+    dst: &mut Vec<T>,
+    bounds: &[usize],
+    parts: &[&[T]],
+) {
+    dst.resize(*bounds.last().expect("one bound"), T::default());
+    split_by(dst, bounds)
+        .into_par_iter()
+        .zip(parts.par_iter())
+        .for_each(|(d, s)| d.copy_from_slice(s));
+}
+
 fn role_hash(role: &[Role]) -> u64 {
     // FNV-1a over the role tags and ghost sources
     let mut h: u64 = 0xcbf29ce484222325;
@@ -138,24 +153,23 @@ impl Assembly {
         }
     }
 
-    /// Empties the rows, reserving `entries` columns.
-    fn clear_rows(&mut self, entries: usize) {
+    /// Sets the offsets and diagonal positions from chunks of rows (each chunk's row lengths
+    /// and the diagonal's position within each row) and returns the chunks' entry bounds:
+    /// chunk `c` holds entries `bounds[c]..bounds[c + 1]`.
+    fn set_rows<'a>(&mut self, chunks: impl Iterator<Item = (&'a [u32], &'a [u32])>) -> Vec<usize> {
         self.offsets.clear();
         self.offsets.push(0);
-        self.cols.clear();
-        self.cols.reserve(entries);
         self.diag.clear();
-    }
-
-    /// Appends rows built by one chunk: their lengths, the diagonal's position within each row
-    /// and their columns, concatenated.
-    fn append_rows(&mut self, lens: &[u32], diag: &[u32], cols: &[u32]) {
-        for (&len, &pos) in lens.iter().zip(diag) {
-            let base = *self.offsets.last().expect("offsets start at 0");
-            self.diag.push(base + pos as usize);
-            self.offsets.push(base + len as usize);
+        let mut bounds = vec![0usize];
+        for (lens, diag) in chunks {
+            for (&len, &pos) in lens.iter().zip(diag) {
+                let base = *self.offsets.last().expect("offsets start at 0");
+                self.diag.push(base + pos as usize);
+                self.offsets.push(base + len as usize);
+            }
+            bounds.push(*self.offsets.last().expect("offsets start at 0"));
         }
-        self.cols.extend_from_slice(cols);
+        bounds
     }
 
     /// Rebuilds the pattern when the candidate pairs or the roles changed; returns true if it did.
@@ -214,10 +228,9 @@ impl Assembly {
                 (lens, cols, diag)
             })
             .collect();
-        self.clear_rows(parts.iter().map(|p| p.1.len()).sum());
-        for (lens, cols, diag) in parts {
-            self.append_rows(&lens, &diag, &cols);
-        }
+        let bounds = self.set_rows(parts.iter().map(|(lens, _, diag)| (&lens[..], &diag[..])));
+        let cols: Vec<&[u32]> = parts.iter().map(|p| &p.1[..]).collect();
+        gather_parts(&mut self.cols, &bounds, &cols);
         self.values = vec![0.0; self.cols.len()];
         self.key = Some(key);
         self.pattern_id += 1;
@@ -425,31 +438,16 @@ impl Assembly {
                 }
             });
         // offsets and diagonals row by row, the columns and values copied chunk by chunk in
-        // parallel (a serial copy of both was ~30 ms of a 10⁶-particle step)
-        self.offsets.clear();
-        self.offsets.push(0);
-        self.diag.clear();
-        let mut bounds = Vec::with_capacity(parts.len() + 1);
-        bounds.push(0usize);
-        for (lens, _, _, diag) in &parts {
-            for (&len, &pos) in lens.iter().zip(diag) {
-                let base = *self.offsets.last().expect("offsets start at 0");
-                self.diag.push(base + pos as usize);
-                self.offsets.push(base + len as usize);
-            }
-            bounds.push(*self.offsets.last().expect("offsets start at 0"));
-        }
-        let total = *bounds.last().expect("one bound");
-        self.cols.resize(total, 0);
-        self.values.resize(total, 0.0);
-        split_by(&mut self.cols, &bounds)
-            .into_par_iter()
-            .zip(split_by(&mut self.values, &bounds))
-            .zip(parts.par_iter())
-            .for_each(|((c, v), (_, cols, vals, _))| {
-                c.copy_from_slice(cols);
-                v.copy_from_slice(vals);
-            });
+        // parallel
+        let bounds = self.set_rows(
+            parts
+                .iter()
+                .map(|(lens, _, _, diag)| (&lens[..], &diag[..])),
+        );
+        let cols: Vec<&[u32]> = parts.iter().map(|p| &p.1[..]).collect();
+        let vals: Vec<&[f64]> = parts.iter().map(|p| &p.2[..]).collect();
+        gather_parts(&mut self.cols, &bounds, &cols);
+        gather_parts(&mut self.values, &bounds, &vals);
         self.chunks.0 = parts;
         self.key = Some(key);
         self.pattern_id += 1;
