@@ -190,6 +190,74 @@ fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
     }
 }
 
+/// The implicit viscous solve by CG stops at `min(rel_tol, viscous_rel_tol)`: under a loose
+/// pressure tolerance it is still solved to its own tight one (its error would enter the
+/// Poisson source and jump from step to step), and a tighter `rel_tol` still governs. Each
+/// result is compared with a solve to 10⁻¹⁵, not with the solver's own report only.
+#[test]
+fn the_viscous_solve_stops_at_its_own_tighter_tolerance() {
+    use gpm::kernel::Weight;
+    use gpm::neighbors::{NeighborConfig, NeighborList};
+    use gpm::poisson::{HelmholtzSolver, SolveInfo, SolveParams, SolverKind};
+    use std::f64::consts::PI;
+    let dx = 1.0 / 24.0;
+    let walls = Walls::<2>::channel([0.0, 0.0], [1.0, 1.0]);
+    let mut p = Particles::<2>::new();
+    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+        let u = [(2.0 * PI * x[1]).sin(), (2.0 * PI * x[0]).cos() * x[1]];
+        p.push(x, u, 0.0, dx * dx, Role::Fluid);
+    }
+    let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0)
+        .with_periodicity(walls.periodicity());
+    walls.make_ghosts(&mut p, config.h);
+    walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+    let nl = NeighborList::build(config, &p.x).unwrap();
+    let rule = |j: usize| match p.role[j] {
+        Role::Ghost {
+            walls: mask,
+            source,
+        } => walls.velocity_affine(mask, &p.x[source as usize]),
+        _ => ([1.0; 2], [0.0; 2]),
+    };
+    let solve = |rel_tol: f64, viscous_rel_tol: f64| -> (Vec<[f64; 2]>, SolveInfo) {
+        let params = SolveParams {
+            solver: SolverKind::Cg,
+            rel_tol,
+            viscous_rel_tol,
+            warm_start: false,
+            ..Default::default()
+        };
+        let mut u = p.u.clone();
+        let info = HelmholtzSolver::new()
+            .solve(&nl, &p.vol, &p.role, &rule, 0.05, &p.u, &mut u, &params)
+            .unwrap();
+        (u, info)
+    };
+    let (exact, _) = solve(1e-15, 1e-15);
+    let err = |u: &[[f64; 2]]| -> f64 {
+        let mut e = 0.0f64;
+        for i in (0..p.len()).filter(|&i| p.role[i].is_fluid()) {
+            for a in 0..2 {
+                e = e.max((u[i][a] - exact[i][a]).abs());
+            }
+        }
+        e
+    };
+    // the loose pressure tolerance alone (the viscous one no tighter)
+    let (loose, li) = solve(1e-4, 1.0);
+    // the default viscous tolerance under the same loose pressure tolerance
+    let (tight, ti) = solve(1e-4, SolveParams::default().viscous_rel_tol);
+    // a pressure tolerance tighter than the viscous one governs
+    let (tighter, ri) = solve(1e-14, 1e-6);
+    assert!(li.rel_residual <= 1e-4 && li.rel_residual > 1e-9, "{li:?}");
+    assert!(ti.rel_residual <= 1e-12, "{ti:?}");
+    assert!(ri.rel_residual <= 1e-14, "{ri:?}");
+    assert!(ti.iters > li.iters, "{} vs {}", ti.iters, li.iters);
+    assert!(err(&loose) > 1e-8, "loose error {}", err(&loose));
+    assert!(err(&tight) < 1e-10, "tight error {}", err(&tight));
+    assert!(err(&tighter) < 1e-11, "tighter error {}", err(&tighter));
+}
+
 /// A moving particle the flow carries towards a wall is kept `WALL_MARGIN Δx` inside it (and
 /// counted), so no particle ever crosses a wall; the monitor sees `c0` change.
 #[test]

@@ -198,6 +198,11 @@ fn solve_params_name_each_bad_value() {
     );
     assert_param(s(&|p| p.rel_tol = -0.5), "solve.rel_tol", -0.5);
     assert_param(s(&|p| p.rel_tol = f64::NAN), "solve.rel_tol", f64::NAN);
+    assert_param(
+        s(&|p| p.viscous_rel_tol = -1e-12),
+        "solve.viscous_rel_tol",
+        -1e-12,
+    );
     assert_param(s(&|p| p.max_iters = 0), "solve.max_iters", 0.0);
     assert_param(s(&|p| p.amg_lag_factor = 0.0), "solve.amg_lag_factor", 0.0);
     // the message names the key and the value

@@ -306,6 +306,8 @@ impl HelmholtzSolver {
                 self.b[d * m + uix] = v;
             }
         }
+        // tighter than the pressure's (see `SolveParams::viscous_rel_tol`)
+        let viscous_tol = params.rel_tol.min(params.viscous_rel_tol);
         match kind {
             SolverKind::Cholesky | SolverKind::Auto => {
                 // one solve per component: faer's multi-column triangular solve measured
@@ -355,7 +357,7 @@ impl HelmholtzSolver {
                     a,
                     bs,
                     xs,
-                    params.rel_tol,
+                    viscous_tol,
                     params.abs_tol,
                     params.max_iters,
                 )?;
@@ -394,13 +396,13 @@ impl HelmholtzSolver {
                             a,
                             b,
                             x,
-                            params.rel_tol,
+                            viscous_tol,
                             params.abs_tol,
                             params.max_iters,
                             &mut self.amg.preconditioner(a),
                         )?
                     } else {
-                        pcg(a, b, x, params.rel_tol, params.abs_tol, params.max_iters)?
+                        pcg(a, b, x, viscous_tol, params.abs_tol, params.max_iters)?
                     };
                     first.get_or_insert(ri);
                     info.iters += ri.iters;
