@@ -125,14 +125,47 @@ fn free_slip_images_keep_the_tangential_velocity_and_reverse_the_normal_one() {
     }
 }
 
+/// A lattice of spacing `dx` filling the unit box of `walls`, carrying `velocity(x)`, with its
+/// wall images (velocities filled) and its neighbour list (`h = 3Δx`, no skin).
+fn walled_box(
+    walls: &Walls<2>,
+    dx: f64,
+    velocity: impl Fn([f64; 2]) -> [f64; 2],
+) -> (Particles<2>, gpm::neighbors::NeighborList<2>) {
+    use gpm::kernel::Weight;
+    use gpm::neighbors::{NeighborConfig, NeighborList};
+    let mut p = Particles::<2>::new();
+    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
+        p.push(x, velocity(x), 0.0, dx * dx, Role::Fluid);
+    }
+    let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0)
+        .with_periodicity(walls.periodicity());
+    walls.make_ghosts(&mut p, config.h);
+    walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
+    let nl = NeighborList::build(config, &p.x).unwrap();
+    (p, nl)
+}
+
+/// The implicit viscous solve's ghost rule of `walls`: each image's velocity as an affine
+/// function of its source's.
+fn ghost_rule<'a>(
+    walls: &'a Walls<2>,
+    p: &'a Particles<2>,
+) -> impl Fn(usize) -> ([f64; 2], [f64; 2]) + Sync + 'a {
+    move |j: usize| match p.role[j] {
+        Role::Ghost {
+            walls: mask,
+            source,
+        } => walls.velocity_affine(mask, &p.x[source as usize]),
+        _ => ([1.0; 2], [0.0; 2]),
+    }
+}
+
 /// The implicit viscous solve with free-slip walls (a different matrix per component) keeps a
 /// uniform flow along the walls exactly — no friction — while no-slip walls brake it next to
 /// them.
 #[test]
 fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
-    use gpm::geometry::lattice;
-    use gpm::kernel::Weight;
-    use gpm::neighbors::{NeighborConfig, NeighborList};
     use gpm::poisson::{HelmholtzSolver, SolveParams};
     let dx = 1.0 / 20.0;
     for slip in [true, false] {
@@ -140,22 +173,8 @@ fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
         if slip {
             walls = walls.free_slip();
         }
-        let mut p = Particles::<2>::new();
-        for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
-            p.push(x, [1.0, 0.0], 0.0, dx * dx, Role::Fluid);
-        }
-        let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0)
-            .with_periodicity(walls.periodicity());
-        walls.make_ghosts(&mut p, config.h);
-        walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
-        let nl = NeighborList::build(config, &p.x).unwrap();
-        let rule = |j: usize| match p.role[j] {
-            Role::Ghost {
-                walls: mask,
-                source,
-            } => walls.velocity_affine(mask, &p.x[source as usize]),
-            _ => ([1.0; 2], [0.0; 2]),
-        };
+        let (p, nl) = walled_box(&walls, dx, |_| [1.0, 0.0]);
+        let rule = ghost_rule(&walls, &p);
         let r = p.u.clone();
         let mut u = p.u.clone();
         let mut solver = HelmholtzSolver::new();
@@ -196,29 +215,14 @@ fn implicit_viscosity_keeps_a_uniform_flow_along_free_slip_walls() {
 /// result is compared with a solve to 10⁻¹⁵, not with the solver's own report only.
 #[test]
 fn the_viscous_solve_stops_at_its_own_tighter_tolerance() {
-    use gpm::kernel::Weight;
-    use gpm::neighbors::{NeighborConfig, NeighborList};
     use gpm::poisson::{HelmholtzSolver, SolveInfo, SolveParams, SolverKind};
     use std::f64::consts::PI;
     let dx = 1.0 / 24.0;
     let walls = Walls::<2>::channel([0.0, 0.0], [1.0, 1.0]);
-    let mut p = Particles::<2>::new();
-    for x in lattice([0.0, 0.0], [1.0, 1.0], dx) {
-        let u = [(2.0 * PI * x[1]).sin(), (2.0 * PI * x[0]).cos() * x[1]];
-        p.push(x, u, 0.0, dx * dx, Role::Fluid);
-    }
-    let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, 0.0)
-        .with_periodicity(walls.periodicity());
-    walls.make_ghosts(&mut p, config.h);
-    walls.fill_vector(&p.role, &mut p.u, VectorKind::Velocity);
-    let nl = NeighborList::build(config, &p.x).unwrap();
-    let rule = |j: usize| match p.role[j] {
-        Role::Ghost {
-            walls: mask,
-            source,
-        } => walls.velocity_affine(mask, &p.x[source as usize]),
-        _ => ([1.0; 2], [0.0; 2]),
-    };
+    let (p, nl) = walled_box(&walls, dx, |x| {
+        [(2.0 * PI * x[1]).sin(), (2.0 * PI * x[0]).cos() * x[1]]
+    });
+    let rule = ghost_rule(&walls, &p);
     let solve = |rel_tol: f64, viscous_rel_tol: f64| -> (Vec<[f64; 2]>, SolveInfo) {
         let params = SolveParams {
             solver: SolverKind::Cg,
