@@ -1303,21 +1303,14 @@ impl Amg {
                     .for_each(|(c, bc)| *bc = pt.row_dot(c, bl));
                 continue;
             }
-            // x = S b and r = b − A S b in one pass
-            w.r.par_iter_mut()
-                .zip(xl.par_iter_mut())
+            // x = S b (the first sweep from zero), then r = b − A x as a plain product: one
+            // gather per entry and the four partial sums of `row_dot`, where forming `S b` inside
+            // the product (both in one pass) gathered `s` and `b` and summed in one chain
+            xl.par_iter_mut()
+                .zip(bl.par_iter().zip(s.par_iter()))
                 .with_min_len(MIN_LEN)
-                .enumerate()
-                .for_each(|(i, (ri, xi))| {
-                    *xi = s[i] * bl[i];
-                    let mut acc = 0.0;
-                    let (cols, values) = al.row(i);
-                    for (v, &j) in values.iter().zip(cols) {
-                        let j = j as usize;
-                        acc += v * s[j] * bl[j];
-                    }
-                    *ri = bl[i] - acc;
-                });
+                .for_each(|(x, (b, s))| *x = s * b);
+            residual(al, bl, xl, &mut w.r);
             for _ in 1..sweeps {
                 jacobi_sweep(al, s, bl, xl, &mut w.r);
                 residual(al, bl, xl, &mut w.r);
