@@ -522,33 +522,55 @@ pub trait HaloSync: Send + Sync + std::fmt::Debug {
 
 /// The warm start of the Poisson solve: the increments of the last steps extrapolated in time
 /// to the new step, `φⁿ⁺¹ ≈ Σ_k ℓ_k(tⁿ⁺¹) φⁿ⁻ᵏ` (Lagrange weights on the steps' times), linear
-/// through the last two or quadratic through the last three. Along the trajectories of moving
-/// particles the increment varies with the path, and the quadratic guess leaves a residual
-/// one to two orders of magnitude smaller (2D Taylor–Green, 10⁵ particles: `‖r₀‖/‖b‖`
-/// 9·10⁻⁵ linear, 1.4·10⁻⁶ quadratic: AMG-CG 9–10 iterations to 10⁻⁸ instead of 6); where the
-/// increments are rough in time (impulsive starts, a band that changes) its larger weights
-/// amplify their noise. So both guesses are formed every step and, once the solve is done,
-/// the one nearer to its solution (over the fluid) is the order of the next step's guess.
+/// through the last two, quadratic through the last three or cubic through the last four.
+/// Along the trajectories of moving particles the increment carries the flow's `u·∇` terms and
+/// each order leaves a smaller residual (2D Taylor–Green, 10⁵ particles: `‖r₀‖/‖b‖`
+/// 9·10⁻⁵ linear, 1.4·10⁻⁶ quadratic: AMG-CG 9–10 iterations to 10⁻⁸ instead of 6; settled, the
+/// quadratic guess 1.8·10⁻⁷ off the solution, the cubic 4.9·10⁻⁹); where the increments are
+/// rough in time (impulsive starts, a band that changes, or a fixed point whose increment is
+/// already predicted to the solver's noise) the larger weights amplify their noise. So every
+/// guess the history allows is formed every step and, once the solve is done, the one nearest
+/// to its solution (over the fluid) is the order of the next step's guess.
 #[derive(Debug, Default)]
 struct WarmStart {
     /// `φⁿ⁻²` and `Δtⁿ⁻¹` (empty / 0 until the history is three deep).
     prev2: Vec<f64>,
     dt_prev2: f64,
-    /// The guesses of this step (empty when no quadratic one could be formed).
+    /// `φⁿ⁻³` and `Δtⁿ⁻²` (empty / 0 until the history is four deep).
+    prev3: Vec<f64>,
+    dt_prev3: f64,
+    /// The guesses of this step (empty when no quadratic / cubic one could be formed).
     linear: Vec<f64>,
     quadratic: Vec<f64>,
-    /// The order the next guess takes.
+    cubic: Vec<f64>,
+    /// The order the next guess takes: cubic when `use_cubic` and a cubic guess can be formed,
+    /// else quadratic when `use_quadratic`, else linear.
     use_quadratic: bool,
+    use_cubic: bool,
+}
+
+/// The Lagrange weights at `t` of the nodes `ts`.
+fn lagrange_weights<const K: usize>(ts: [f64; K], t: f64) -> [f64; K] {
+    std::array::from_fn(|k| {
+        (0..K)
+            .filter(|&m| m != k)
+            .map(|m| (t - ts[m]) / (ts[k] - ts[m]))
+            .product()
+    })
 }
 
 impl WarmStart {
-    /// Forgets the third level (the history was reset or handed over).
+    /// Forgets the third and fourth levels (the history was reset or handed over).
     fn forget(&mut self) {
         self.prev2.clear();
         self.dt_prev2 = 0.0;
+        self.prev3.clear();
+        self.dt_prev3 = 0.0;
         self.linear.clear();
         self.quadratic.clear();
+        self.cubic.clear();
         self.use_quadratic = false;
+        self.use_cubic = false;
     }
 
     /// Overwrites `phi` (`φⁿ` on entry) with the guess for the step of length `dt`, and shifts
@@ -556,6 +578,7 @@ impl WarmStart {
     fn extrapolate(&mut self, phi: &mut [f64], prev: &mut [f64], dt: f64, dt_prev: f64) {
         let n = phi.len();
         let quad = self.prev2.len() == n && self.dt_prev2 > 0.0;
+        let cubic = quad && self.prev3.len() == n && self.dt_prev3 > 0.0;
         if quad {
             // Lagrange weights at tⁿ⁺¹ on tⁿ, tⁿ⁻¹ = tⁿ − a, tⁿ⁻² = tⁿ − a − b
             let (a, b) = (dt_prev, self.dt_prev2);
@@ -563,26 +586,47 @@ impl WarmStart {
             let l1 = -dt * (dt + a + b) / (a * b);
             let l2 = dt * (dt + a) / ((a + b) * b);
             let r = dt / a;
+            // and on tⁿ⁻³ = tⁿ − a − b − c as well
+            let c3 = lagrange_weights([0.0, -a, -a - b, -a - b - self.dt_prev3], dt);
             self.linear.resize(n, 0.0);
             self.quadratic.resize(n, 0.0);
+            if cubic {
+                self.cubic.resize(n, 0.0);
+            } else {
+                // the history becomes four deep: φⁿ⁻² moves to the fourth level
+                self.cubic.clear();
+                self.prev3.clone_from(&self.prev2);
+            }
+            let use_cubic = cubic && self.use_cubic;
             for i in 0..n {
                 let (p0, p1, p2) = (phi[i], prev[i], self.prev2[i]);
                 self.linear[i] = p0 + r * (p0 - p1);
                 self.quadratic[i] = l0 * p0 + l1 * p1 + l2 * p2;
+                if cubic {
+                    let p3 = self.prev3[i];
+                    self.cubic[i] = c3[0] * p0 + c3[1] * p1 + c3[2] * p2 + c3[3] * p3;
+                    self.prev3[i] = p2;
+                }
                 self.prev2[i] = p1;
                 prev[i] = p0;
-                phi[i] = if self.use_quadratic {
+                phi[i] = if use_cubic {
+                    self.cubic[i]
+                } else if self.use_quadratic {
                     self.quadratic[i]
                 } else {
                     self.linear[i]
                 };
             }
+            self.dt_prev3 = self.dt_prev2;
         } else {
             let r = dt / dt_prev;
             self.prev2.clear();
             self.prev2.extend_from_slice(prev);
+            self.prev3.clear();
+            self.dt_prev3 = 0.0;
             self.linear.clear();
             self.quadratic.clear();
+            self.cubic.clear();
             for (p, q) in phi.iter_mut().zip(prev.iter_mut()) {
                 let last = *p;
                 *p = last + r * (last - *q);
@@ -592,20 +636,25 @@ impl WarmStart {
         self.dt_prev2 = dt_prev;
     }
 
-    /// After the solve: the order whose guess was nearer to the solution `phi` over the fluid
+    /// After the solve: the order whose guess was nearest to the solution `phi` over the fluid
     /// is the next step's.
     fn judge(&mut self, phi: &[f64], role: &[Role]) {
         if self.quadratic.len() != phi.len() || self.linear.len() != phi.len() {
             return;
         }
-        let (mut el, mut eq) = (0.0, 0.0);
+        let with_cubic = self.cubic.len() == phi.len();
+        let (mut el, mut eq, mut ec) = (0.0, 0.0, 0.0);
         for i in 0..phi.len() {
             if role[i].is_fluid() {
                 el += (phi[i] - self.linear[i]).powi(2);
                 eq += (phi[i] - self.quadratic[i]).powi(2);
+                if with_cubic {
+                    ec += (phi[i] - self.cubic[i]).powi(2);
+                }
             }
         }
         self.use_quadratic = eq < el;
+        self.use_cubic = with_cubic && ec < el.min(eq);
     }
 }
 
@@ -1694,6 +1743,58 @@ mod tests {
         // a reset history starts linear again
         w.forget();
         assert!(!w.use_quadratic && w.prev2.is_empty());
+    }
+
+    /// A cubic in time: once the history is four deep the cubic guess through unequal steps is
+    /// exact, the judge picks it over the quadratic, and `forget` drops the fourth level.
+    #[test]
+    fn the_warm_start_extrapolates_cubics_exactly_once_four_levels_deep() {
+        let role = vec![Role::Fluid; 4];
+        let at = |t: f64| -> Vec<f64> {
+            (0..4)
+                .map(|i| 0.5 + i as f64 * t - 0.7 * t * t + (1.0 + 0.4 * i as f64) * t * t * t)
+                .collect()
+        };
+        let times = [0.0, 0.1, 0.25, 0.3, 0.42, 0.5, 0.61];
+        let mut w = WarmStart::default();
+        let mut phi = at(times[0]);
+        let mut prev = phi.clone();
+        let mut last = (Vec::new(), false);
+        for k in 1..times.len() {
+            let (dt, dt_prev) = (times[k] - times[k - 1], times[k - 1] - times[k.max(2) - 2]);
+            if k == 1 {
+                w.forget();
+                prev.clone_from(&phi);
+                phi = at(times[k]);
+                continue;
+            }
+            w.extrapolate(&mut phi, &mut prev, dt, dt_prev);
+            last = (phi.clone(), w.use_cubic && w.cubic.len() == phi.len());
+            let exact = at(times[k]);
+            if k >= 4 {
+                // four levels: the cubic guess is formed, exact to round-off
+                let e = w
+                    .cubic
+                    .iter()
+                    .zip(&exact)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                assert!(e < 1e-13, "step {k}: cubic guess off by {e}");
+            }
+            phi = exact;
+            w.judge(&phi, &role);
+        }
+        // the last guess was the cubic one, exact
+        assert!(last.1, "the judge did not choose the cubic order");
+        let e = last
+            .0
+            .iter()
+            .zip(at(times[times.len() - 1]))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(e < 1e-13, "{e}");
+        w.forget();
+        assert!(!w.use_cubic && w.prev3.is_empty() && w.dt_prev3 == 0.0);
     }
 
     /// Increments that are rough in time (alternating): the linear guess is nearer, and the
