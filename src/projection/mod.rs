@@ -587,7 +587,11 @@ impl WarmStart {
             let l2 = dt * (dt + a) / ((a + b) * b);
             let r = dt / a;
             // and on tⁿ⁻³ = tⁿ − a − b − c as well
-            let c3 = lagrange_weights([0.0, -a, -a - b, -a - b - self.dt_prev3], dt);
+            let c3 = if cubic {
+                lagrange_weights([0.0, -a, -a - b, -a - b - self.dt_prev3], dt)
+            } else {
+                [0.0; 4]
+            };
             self.linear.resize(n, 0.0);
             self.quadratic.resize(n, 0.0);
             if cubic {
@@ -1696,6 +1700,42 @@ mod tests {
             .collect()
     }
 
+    /// The largest `|a_i − b_i|`.
+    fn max_diff(a: &[f64], b: &[f64]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max)
+    }
+
+    /// Runs the history a projection keeps (`phi` = the last solution, `prev` = the one
+    /// before; the first step has none to extrapolate from and copies) through the solutions
+    /// `at(times[k])`: for each step `k ≥ 2` the guess, then `visit(k, w, guess)`, then the
+    /// judge on the solution.
+    fn replay(
+        w: &mut WarmStart,
+        times: &[f64],
+        at: impl Fn(f64) -> Vec<f64>,
+        role: &[Role],
+        mut visit: impl FnMut(usize, &WarmStart, &[f64]),
+    ) {
+        let mut phi = at(times[0]);
+        let mut prev = phi.clone();
+        for k in 1..times.len() {
+            let (dt, dt_prev) = (times[k] - times[k - 1], times[k - 1] - times[k.max(2) - 2]);
+            if k == 1 {
+                w.forget();
+                prev.clone_from(&phi);
+                phi = at(times[k]);
+                continue;
+            }
+            w.extrapolate(&mut phi, &mut prev, dt, dt_prev);
+            visit(k, w, &phi);
+            phi = at(times[k]);
+            w.judge(&phi, role);
+        }
+    }
+
     /// The quadratic guess through three unequal steps is exact for a quadratic in time, the
     /// linear one is not; the solve's judge then picks the quadratic order for the next step,
     /// and a history shorter than three levels gives the linear guess.
@@ -1704,34 +1744,12 @@ mod tests {
         let role = vec![Role::Fluid; 5];
         let times = [0.0, 0.1, 0.25, 0.3, 0.42];
         let mut w = WarmStart::default();
-        // the history a projection keeps: phi = φ of the last solve, prev = the one before
-        let mut phi = phi_at(times[0]);
-        let mut prev = phi.clone();
         let mut guesses = Vec::new();
-        for k in 1..times.len() {
-            let (dt, dt_prev) = (
-                times[k] - times[k - 1],
-                times[k - 1] - times[(k.max(2)) - 2],
-            );
-            if k == 1 {
-                // the first step has no history to extrapolate from: the projection copies
-                w.forget();
-                prev.clone_from(&phi);
-                phi = phi_at(times[k]);
-                continue;
-            }
-            w.extrapolate(&mut phi, &mut prev, dt, dt_prev);
-            guesses.push((k, phi.clone(), w.use_quadratic));
-            phi = phi_at(times[k]);
-            w.judge(&phi, &role);
-        }
+        replay(&mut w, &times, phi_at, &role, |k, w, guess| {
+            guesses.push((k, guess.to_vec(), w.use_quadratic))
+        });
         let exact = |k: usize| phi_at(times[k]);
-        let err = |g: &[f64], k: usize| {
-            g.iter()
-                .zip(exact(k))
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max)
-        };
+        let err = |g: &[f64], k: usize| max_diff(g, &exact(k));
         // k = 2: two levels only, a linear guess (not exact for a quadratic)
         assert!(!guesses[0].2 && err(&guesses[0].1, 2) > 1e-3);
         // k = 3: three levels, but the order was not judged yet: linear, and the judge then
@@ -1757,41 +1775,18 @@ mod tests {
         };
         let times = [0.0, 0.1, 0.25, 0.3, 0.42, 0.5, 0.61];
         let mut w = WarmStart::default();
-        let mut phi = at(times[0]);
-        let mut prev = phi.clone();
         let mut last = (Vec::new(), false);
-        for k in 1..times.len() {
-            let (dt, dt_prev) = (times[k] - times[k - 1], times[k - 1] - times[k.max(2) - 2]);
-            if k == 1 {
-                w.forget();
-                prev.clone_from(&phi);
-                phi = at(times[k]);
-                continue;
-            }
-            w.extrapolate(&mut phi, &mut prev, dt, dt_prev);
-            last = (phi.clone(), w.use_cubic && w.cubic.len() == phi.len());
-            let exact = at(times[k]);
+        replay(&mut w, &times, at, &role, |k, w, guess| {
+            last = (guess.to_vec(), w.use_cubic && w.cubic.len() == guess.len());
             if k >= 4 {
                 // four levels: the cubic guess is formed, exact to round-off
-                let e = w
-                    .cubic
-                    .iter()
-                    .zip(&exact)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max);
+                let e = max_diff(&w.cubic, &at(times[k]));
                 assert!(e < 1e-13, "step {k}: cubic guess off by {e}");
             }
-            phi = exact;
-            w.judge(&phi, &role);
-        }
+        });
         // the last guess was the cubic one, exact
         assert!(last.1, "the judge did not choose the cubic order");
-        let e = last
-            .0
-            .iter()
-            .zip(at(times[times.len() - 1]))
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
+        let e = max_diff(&last.0, &at(times[times.len() - 1]));
         assert!(e < 1e-13, "{e}");
         w.forget();
         assert!(!w.use_cubic && w.prev3.is_empty() && w.dt_prev3 == 0.0);
