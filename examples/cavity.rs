@@ -88,8 +88,9 @@ struct Args {
     #[arg(long)]
     average: Option<f64>,
     /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles
-    /// and for the GPM operators, no-slip for the consistent ones on fixed particles), mirror or
-    /// no-slip.
+    /// and for the GPM operators, no-slip for the consistent ones on fixed particles), mirror,
+    /// no-slip, or rest-walls (no-slip images across the walls at rest, the mirror across the
+    /// lid).
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Width of the lid's corner ramp in side lengths (0: the classic lid, discontinuous at the

@@ -26,6 +26,12 @@ pub enum VectorKind {
     Velocity,
     /// Mirror: normal components flipped, tangential kept (`v_g = L v_src`).
     Mirror,
+    /// No-slip images across walls at rest, the mirror across moving ones: a ghost whose
+    /// walls are all at rest gets `−v_src` (the odd continuation, smooth to first derivatives
+    /// where the field vanishes on the wall), any other the mirror image. A moving lid's
+    /// speed is discontinuous where it meets the walls at rest; its no-slip images would carry
+    /// that jump into a divergence at the lid's corners (`O(1/Δx)` there).
+    RestWalls,
 }
 
 /// Boundary handling the projection step and the flow solver call into.
@@ -303,6 +309,19 @@ impl<const D: usize> Walls<D> {
     }
 
     /// True when some wall's velocity varies along it.
+    /// [`VectorKind::RestWalls`] across the walls in `mask`: the no-slip image where it adds no
+    /// wall velocity (the image of a fluid at rest is at rest: walls at rest, and a moving
+    /// wall's corners with walls at rest, where the mean over the orders of the reflections
+    /// cancels its `2U`), else the mirror image.
+    fn rest_walls_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
+        let moved = self.velocity_image(&[0.0; D], mask);
+        if moved.iter().all(|&u| u == 0.0) {
+            self.velocity_image(v, mask)
+        } else {
+            self.mirror_image(v, mask)
+        }
+    }
+
     fn ramped(&self) -> bool {
         self.walls
             .iter()
@@ -440,6 +459,7 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         fill_from_sources(role, v, |s, walls| match kind {
             VectorKind::Velocity => self.velocity_image(s, walls),
             VectorKind::Mirror => self.mirror_image(s, walls),
+            VectorKind::RestWalls => self.rest_walls_image(s, walls),
         });
     }
 

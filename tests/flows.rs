@@ -647,3 +647,76 @@ fn fluid_csv_lists_the_fluid_particles_exactly() {
     q.push([0.0; 3], [0.0; 3], 0.0, 1.0, Role::Fluid);
     assert_eq!(q.fluid_csv(), "x,y,z,u,v,w,p\n0,0,0,0,0,0,0\n");
 }
+
+/// The rest-walls rule of the Poisson source on the lid-driven cavity's ghosts: the no-slip
+/// image (`−v`) across a wall at rest and across two of them, the mirror across the lid, and
+/// across the lid and a side wall (where the no-slip images' two orders give `2U + v` and
+/// `v − 2U`, whose mean adds no lid speed) the no-slip image `v`.
+#[test]
+fn rest_walls_rule_takes_no_slip_images_where_no_wall_speed_enters() {
+    use gpm::boundary::{Boundary, VectorKind};
+    let walls = Walls::<2>::cavity(1.0, 1.0);
+    // walls of the closed box: 0 x = 0, 1 x = 1, 2 y = 0, 3 y = 1 (the lid)
+    let cases: [(u8, [f64; 2]); 6] = [
+        (0b0001, [-0.3, -0.7]), // left wall at rest
+        (0b0100, [-0.3, -0.7]), // floor
+        (0b0101, [0.3, 0.7]),   // floor and left wall: −(−v)
+        (0b1000, [0.3, -0.7]),  // lid: the mirror (normal component flipped)
+        (0b1010, [0.3, 0.7]),   // lid and right wall: the orders' mean, no lid speed
+        (0b1001, [0.3, 0.7]),   // lid and left wall
+    ];
+    let mut role = vec![Role::Fluid];
+    role.extend(cases.iter().map(|&(w, _)| Role::Ghost {
+        source: 0,
+        walls: w,
+    }));
+    let mut v = vec![[0.3, 0.7]; role.len()];
+    walls.fill_vector(&role, &mut v, VectorKind::RestWalls);
+    // (the corner's mean of `2U + v` and `v − 2U` rounds to within an ulp of `v`)
+    let near = |a: [f64; 2], b: [f64; 2]| (0..2).all(|c| (a[c] - b[c]).abs() < 1e-15);
+    for (k, (mask, want)) in cases.iter().enumerate() {
+        assert!(
+            near(v[k + 1], *want),
+            "ghost across walls {mask:04b}: {:?}",
+            v[k + 1]
+        );
+    }
+    // the no-slip rule itself puts the lid's speed into the lid's images (the rule differs there)
+    let mut w = vec![[0.3, 0.7]; role.len()];
+    walls.fill_vector(&role, &mut w, VectorKind::Velocity);
+    assert!(near(w[4], [2.0 - 0.3, -0.7]), "{:?}", w[4]);
+    assert!(near(w[5], [0.3, 0.7]), "{:?}", w[5]);
+}
+
+/// The Re 1000 cavity's error against the extrapolated reference with the Poisson source
+/// continued by the rest-walls rule and `h = 2.5Δx` against the defaults (mirror rule, `h =
+/// 3Δx`), both run to their steady state at n = 24: the wall jets are what the default gets
+/// wrong (too thick), and the rule's no-slip images at the walls at rest are what thins them.
+#[test]
+fn rest_walls_source_rule_cuts_the_re1000_cavity_error() {
+    let run = |rest: bool| {
+        let cfg = CavityConfig::default().with(|c| {
+            c.re = 1000.0;
+            c.n = 24;
+            c.t_end = 150.0;
+            if rest {
+                c.h_over_dx = 2.5;
+                c.scene.source_ghosts = cavity::SourceGhosts::RestWalls;
+            }
+        });
+        let r = cavity::run(&cfg, |rep, _| {
+            let p = &rep.projection;
+            assert!(p.stability_ratio <= 1.0, "ratio {}", p.stability_ratio);
+            assert!(p.max_speed.is_finite() && p.max_speed < 1.5);
+            Ok(())
+        })
+        .unwrap();
+        assert!(r.steady, "rest walls {rest}: not steady by t = {}", r.t_end);
+        r.reference.expect("the extrapolated reference at Re 1000")
+    };
+    let (def, rest) = (run(false), run(true));
+    assert!(
+        rest.rms_u < 0.75 * def.rms_u && rest.rms_v < 0.75 * def.rms_v,
+        "rest walls {rest:?} against the defaults {def:?}"
+    );
+}

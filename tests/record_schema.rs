@@ -232,11 +232,11 @@ fn every_variant_validates_and_round_trips() {
             m.neighbors.weight = *w;
             m.params.scheme = schemes[(k + l) % 3];
             m.params.solve.solver = solvers[l % 3];
-            m.params.source_ghosts = if (k + l).is_multiple_of(2) {
-                gpm::record::schema::GhostContinuation::Mirror
-            } else {
-                gpm::record::schema::GhostContinuation::Velocity
-            };
+            m.params.source_ghosts = [
+                gpm::record::schema::GhostContinuation::Mirror,
+                gpm::record::schema::GhostContinuation::Velocity,
+                gpm::record::schema::GhostContinuation::RestWalls,
+            ][(k + l) % 3];
             let j = serde_json::to_value(&m).unwrap();
             assert_valid(&v, &j, &format!("projection input {k} {l}"));
             assert_eq!(serde_json::from_value::<ProjectionInput>(j).unwrap(), m);

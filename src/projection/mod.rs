@@ -179,7 +179,10 @@ pub struct ProjectionParams<const D: usize> {
     /// [`VectorKind::Mirror`] (normal component flipped, tangential kept) keeps `∇̂h·` and `∇h`
     /// exactly adjoint, so Theorem 4.5 applies and its ratio is at most 1; the no-slip rule
     /// ([`VectorKind::Velocity`]) feeds the wall velocity into the source (the adjointness then
-    /// holds only up to wall terms, and an impulsively started lid gives ratios above 1).
+    /// holds only up to wall terms, and an impulsively started lid gives ratios above 1);
+    /// [`VectorKind::RestWalls`] takes the no-slip images across walls at rest (the odd
+    /// continuation, smooth where the velocity vanishes on the wall; the mirror's even one has
+    /// a kink there) and the mirror across moving ones (a lid's speed jumps at its corners).
     pub source_ghosts: VectorKind,
     /// Reuse connectivity and `c0` while the pair data, roles and volumes are bit-identical
     /// (they are functions of those alone; default true).

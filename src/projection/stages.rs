@@ -33,8 +33,9 @@ use rayon::prelude::*;
 /// field the particles carry (zeroing the band would make a divergence-free field look
 /// divergent within `h` of it — at a free surface, the water flowing toward its moving surface
 /// would look compressed); when the boundary has ghosts and
-/// `ghost_rule` is [`VectorKind::Mirror`], the ghosts are refilled by the mirror rule (else they
-/// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
+/// `ghost_rule` is [`VectorKind::Mirror`] or [`VectorKind::RestWalls`], the ghosts are refilled
+/// by that rule (else they keep `scale` times the ghost values of `v`, which the caller filled
+/// by the no-slip rule).
 pub fn source_field<const D: usize>(
     role: &[Role],
     boundary: &dyn Boundary<D>,
@@ -54,8 +55,8 @@ pub fn source_field<const D: usize>(
             v[i].map(|x| scale * x)
         };
     }
-    if boundary.has_ghosts() && ghost_rule == VectorKind::Mirror {
-        boundary.fill_vector(role, f, VectorKind::Mirror);
+    if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
+        boundary.fill_vector(role, f, ghost_rule);
     }
 }
 
@@ -63,7 +64,7 @@ pub fn source_field<const D: usize>(
 ///
 /// * [`SourceKind::SumForm`]: `∇̂h·v_i = d Σ_j ω_j (v_j + v_i)·x_ji w_h/r²`;
 /// * [`SourceKind::AdjointBt`]: `∇̂h·(Bᵀv)`, with `Bᵀv` continued into the ghosts by the mirror
-///   rule when `ghost_rule` is [`VectorKind::Mirror`] (as `v` was);
+///   rule `ghost_rule` unless it is the no-slip one (as `v` was);
 /// * [`SourceKind::Renormalised`]: `∇ᶜ·v_i = Σ_a (B_i ∇h v_a)_a`;
 /// * [`SourceKind::LeastSquares`]: `∇ˡˢ·v_i = Σ_a (∇ˡˢ v_a)_a`.
 ///
@@ -93,8 +94,8 @@ pub fn divergence_into<const D: usize>(
             renorm.update(nl, vol, n);
             work.resize(n, [0.0; D]);
             renorm.apply_transpose_into(v, work);
-            if boundary.has_ghosts() && ghost_rule == VectorKind::Mirror {
-                boundary.fill_vector(role, work, VectorKind::Mirror);
+            if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
+                boundary.fill_vector(role, work, ghost_rule);
             }
             div_sum_into(nl, vol, work, out);
         }

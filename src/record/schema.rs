@@ -1324,6 +1324,8 @@ pub enum GhostContinuation {
     Velocity,
     /// [`VectorKind::Mirror`]: normal components flipped.
     Mirror,
+    /// [`VectorKind::RestWalls`]: no-slip images across walls at rest, mirror across moving ones.
+    RestWalls,
 }
 
 impl From<VectorKind> for GhostContinuation {
@@ -1331,6 +1333,7 @@ impl From<VectorKind> for GhostContinuation {
         match k {
             VectorKind::Velocity => GhostContinuation::Velocity,
             VectorKind::Mirror => GhostContinuation::Mirror,
+            VectorKind::RestWalls => GhostContinuation::RestWalls,
         }
     }
 }
@@ -1340,6 +1343,7 @@ impl From<GhostContinuation> for VectorKind {
         match k {
             GhostContinuation::Velocity => VectorKind::Velocity,
             GhostContinuation::Mirror => VectorKind::Mirror,
+            GhostContinuation::RestWalls => VectorKind::RestWalls,
         }
     }
 }

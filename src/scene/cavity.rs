@@ -197,6 +197,9 @@ pub enum SourceGhosts {
     Mirror,
     /// The no-slip velocity images (wall velocity enters the source).
     NoSlip,
+    /// The no-slip images across the walls at rest, the mirror across the lid
+    /// ([`crate::boundary::VectorKind::RestWalls`]).
+    RestWalls,
 }
 
 impl std::str::FromStr for SourceGhosts {
@@ -206,8 +209,9 @@ impl std::str::FromStr for SourceGhosts {
             "auto" => Ok(SourceGhosts::Auto),
             "mirror" => Ok(SourceGhosts::Mirror),
             "no_slip" | "noslip" => Ok(SourceGhosts::NoSlip),
+            "rest_walls" => Ok(SourceGhosts::RestWalls),
             _ => Err(format!(
-                "unknown source ghost rule '{s}': expected auto, mirror or no-slip"
+                "unknown source ghost rule '{s}': expected auto, mirror, no-slip or rest-walls"
             )),
         }
     }
@@ -220,6 +224,7 @@ impl SourceGhosts {
             SourceGhosts::Auto => None,
             SourceGhosts::Mirror => Some(crate::boundary::VectorKind::Mirror),
             SourceGhosts::NoSlip => Some(crate::boundary::VectorKind::Velocity),
+            SourceGhosts::RestWalls => Some(crate::boundary::VectorKind::RestWalls),
         }
     }
 }
