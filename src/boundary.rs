@@ -335,9 +335,14 @@ impl<const D: usize> Walls<D> {
     /// The velocity rule across the walls in `mask` for a source with velocity `v` at `x`
     /// (`None`: every wall's velocity uniform).
     fn velocity_image_at(&self, v: &[f64; D], mask: u8, x: Option<&[f64; D]>) -> [f64; D] {
-        let ks: Vec<usize> = (0..self.walls.len())
-            .filter(|k| mask & (1 << k) != 0)
-            .collect();
+        // the walls crossed (a mask of eight bits: at most eight), without an allocation
+        let mut walls = [0usize; 8];
+        let mut n = 0;
+        for k in (0..self.walls.len().min(8)).filter(|k| mask & (1 << k) != 0) {
+            walls[n] = k;
+            n += 1;
+        }
+        let ks = &walls[..n];
         let image = |k: usize, y: &[f64; D]| match x {
             Some(x) => self.walls[k].velocity_image_with(y, &self.wall_velocity_at(k, x).0),
             None => self.walls[k].velocity_image(y),
