@@ -26,9 +26,11 @@ pub enum VectorKind {
     Velocity,
     /// Mirror: normal components flipped, tangential kept (`v_g = L v_src`).
     Mirror,
-    /// No-slip images across walls at rest, the mirror across moving ones: a ghost whose
-    /// walls are all at rest gets `−v_src` (the odd continuation, smooth to first derivatives
-    /// where the field vanishes on the wall), any other the mirror image. A moving lid's
+    /// The no-slip image where it adds no wall velocity, the mirror elsewhere: across walls
+    /// at rest `−v_src` (the odd continuation, smooth to first derivatives where the field
+    /// vanishes on the wall), across a moving wall the mirror, and across a moving wall and a
+    /// wall at rest together (a lid's corner ghosts) the no-slip rule's image when its mean
+    /// over the reflection orders cancels the wall speed (two walls: `v_src`). A moving lid's
     /// speed is discontinuous where it meets the walls at rest; its no-slip images would carry
     /// that jump into a divergence at the lid's corners (`O(1/Δx)` there).
     RestWalls,
@@ -308,7 +310,6 @@ impl<const D: usize> Walls<D> {
         (w.velocity.map(|u| u * f), df)
     }
 
-    /// True when some wall's velocity varies along it.
     /// [`VectorKind::RestWalls`] across the walls in `mask`: the no-slip image where it adds no
     /// wall velocity (the image of a fluid at rest is at rest: walls at rest, and a moving
     /// wall's corners with walls at rest, where the mean over the orders of the reflections
@@ -322,6 +323,7 @@ impl<const D: usize> Walls<D> {
         }
     }
 
+    /// True when some wall's velocity varies along it.
     fn ramped(&self) -> bool {
         self.walls
             .iter()
