@@ -10,7 +10,7 @@
 //! height `H` are compared with it as in 2D (the front is the largest `x` of the water over the
 //! whole depth, the height the largest `z` within `Δx` of the wall `x = 0`).
 //!
-//! The walls are free-slip by default: with no-slip walls (the 2D default) the runs reach
+//! The walls are free-slip by default, as in 2D: with no-slip walls the runs reach
 //! T = 3 (2026-11-28, n = 8 … 26), but the band particles at the wall `x = 0` hang there as a
 //! film (column height 21–25 % off the experiment, 2 % free-slip) and the particles of the
 //! front's bottom corners are thrown back into the water, held only by the wall margin
@@ -42,9 +42,7 @@ pub struct DamBreak3d {
     pub gravity: f64,
     /// Free-surface detection.
     pub free_surface: FreeSurface,
-    /// The walls: `free_slip` (default) or `no_slip`. Unlike in 2D, free-slip is the
-    /// default: with no-slip walls the particles at the front's bottom corners (floor and side
-    /// wall) are thrown back into the water and the run fails before T = 3 (README, "The 3D
+    /// The walls: `free_slip` (default, as in 2D) or `no_slip` (module docs; README, "The 3D
     /// dam break").
     pub walls: WallKind,
 }
