@@ -191,6 +191,41 @@ fn the_dam_break_front_starts_at_the_measured_pace() {
     }
 }
 
+/// The dam break's non-incremental solve holds the band at the pressures the band particles
+/// carry: `p_b` (the surface half a spacing beyond them) with the default offset, zero with
+/// `surface_offset = 0` — the pressures recorded are the values the solve used (before
+/// 2026-11-28 the solve held zero and the particles carried `p_b`).
+#[test]
+fn the_non_incremental_solve_holds_the_band_at_its_recorded_pressures() {
+    for offset in [0.5, 0.0] {
+        let cfg = DamBreakConfig::default().with(|c| {
+            c.n = 16;
+            c.scene.free_surface.surface_offset = offset;
+        });
+        let mut sim = dam_break::build(&cfg).unwrap();
+        let mut positive = 0;
+        for _ in 0..4 {
+            sim.advance().unwrap();
+            let held = sim.projection.band_increment();
+            let p = &sim.particles;
+            for i in 0..p.len() {
+                if p.role[i] != Role::Dirichlet {
+                    continue;
+                }
+                // the values the solve held (none: zero)
+                let g = held.get(i).copied().unwrap_or(0.0);
+                assert_eq!(g, p.p[i], "offset {offset}: band particle {i}");
+                positive += (p.p[i] > 0.0) as usize;
+            }
+        }
+        if offset > 0.0 {
+            assert!(positive > 0, "no band particle with a pressure");
+        } else {
+            assert_eq!(positive, 0);
+        }
+    }
+}
+
 /// Free-slip walls hold a tank at rest too (CI size, the bars). Without wall friction
 /// the start-up transient decays more slowly: measured at n = 30, the pressure error is 1.8 %
 /// at t = 2, 0.39 % at t = 3, 0.064 % at t = 5 (no-slip: under 1 % at t = 2).

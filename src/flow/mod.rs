@@ -799,6 +799,14 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                     let rho = self.params.projection.rho;
                     free_surface::set_band_pressure(&mut self.particles, &self.nl, &g, rho, offset);
                 }
+                // the non-incremental solve's unknown is the pressure itself: the band's
+                // values are its pressures (`p_b` with an offset, zero without); the
+                // incremental schemes hold `φ = 0` there and keep `p_b` through `pⁿ + φ`
+                if self.params.projection.scheme == Scheme::NonIncremental && offset > 0.0 {
+                    let mut g = self.projection.take_band_increment();
+                    g.clone_from(&self.particles.p);
+                    self.projection.set_band_increment(g);
+                }
                 neighbors_seconds += t.elapsed().as_secs_f64();
                 Some(count)
             }

@@ -792,10 +792,17 @@ impl<const D: usize> ProjectionStep<D> {
     /// the right side of row `i` — and the correction's gradient reads `g` there. An empty
     /// vector (the default) is the paper's homogeneous problem `φ = 0`. Values that continue
     /// the fluid's `φ` smoothly into the band (e.g. extrapolated to a surface beyond it)
-    /// remove the kink that `φ = 0` on a band of finite width leaves at its inner edge. Not
-    /// supported with a [`HaloSync`] (a decomposed run): [`project`](Self::project) rejects it.
+    /// remove the kink that `φ = 0` on a band of finite width leaves at its inner edge. With a
+    /// [`HaloSync`] (a decomposed run) the owners' values are what counts: the projection
+    /// overwrites the halo copies' entries with them.
     pub fn set_band_increment(&mut self, values: Vec<f64>) {
         self.band_phi = values;
+    }
+
+    /// Takes the band's Dirichlet values of the increment out (leaving `φ = 0` on the band), to
+    /// be refilled and handed back with [`Self::set_band_increment`] without an allocation.
+    pub fn take_band_increment(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.band_phi)
     }
 
     /// The band's Dirichlet values of the increment ([`Self::set_band_increment`]; empty:
@@ -804,8 +811,7 @@ impl<const D: usize> ProjectionStep<D> {
         &self.band_phi
     }
 
-    /// Rejects band values that do not cover the particles, are not finite on the band, or
-    /// come with a halo.
+    /// Rejects band values that do not cover the particles or are not finite on the band.
     fn check_band_increment(&self, role: &[Role]) -> Result<(), InputError> {
         let g = &self.band_phi;
         if g.is_empty() {
@@ -818,13 +824,6 @@ impl<const D: usize> ProjectionStep<D> {
                 len: g.len(),
                 expected: first,
             });
-        }
-        if self.halo.is_some() {
-            return Err(InputError::parameter(
-                "band_increment",
-                g.len() as f64,
-                "inhomogeneous band values are not supported in a decomposed run",
-            ));
         }
         match (0..first).find(|&i| role[i] == Role::Dirichlet && !g[i].is_finite()) {
             Some(i) => Err(InputError::NonFinite {
@@ -1566,6 +1565,10 @@ impl<const D: usize> ProjectionStep<D> {
         self.phi.resize(n, 0.0);
         let inhomogeneous = !self.band_phi.is_empty();
         if inhomogeneous {
+            // a rank's halo copies take their owners' values (a copy's neighbourhood is cut)
+            if let Some(h) = self.halo.as_mut() {
+                h.scalar(&mut self.band_phi);
+            }
             stages::add_band_values(nl, vol, role, &self.band_phi, &mut self.rhs);
         }
         report.solve = self.solver.solve(
