@@ -196,6 +196,33 @@ pub fn interpolate(curve: &[(f64, f64)], t: f64) -> Option<f64> {
     Some(y0 + (y1 - y0) * (t - t0) / (t1 - t0))
 }
 
+/// The delay `ΔT ∈ [0, max_lag]` (steps of 0.001) of the simulated curve that brings it nearest
+/// to the measured points over `lo ≤ T ≤ hi`: the one that minimises the mean relative
+/// deviation of `y_sim(T − ΔT)` from `y_exp(T)` (every such point covered by the delayed curve,
+/// as far as `lo − ΔT` reaches back to its start), with that deviation; `None` when no delay
+/// covers a point. A diagnostic of a start-up delay (an experiment's release that is not
+/// instantaneous), not an error measure: it is fitted to the measurements.
+pub fn best_delay(
+    sim: &[(f64, f64)],
+    measured: &[(f64, f64)],
+    lo: f64,
+    hi: f64,
+    max_lag: f64,
+) -> Option<(f64, f64)> {
+    let steps = (max_lag / 1e-3).round() as usize;
+    let mut best: Option<(f64, f64)> = None;
+    for k in 0..=steps {
+        let lag = k as f64 * 1e-3;
+        let delayed: Vec<(f64, f64)> = sim.iter().map(|&(t, y)| (t + lag, y)).collect();
+        if let Some((d, _)) = mean_relative_deviation(&delayed, measured, lo, hi) {
+            if best.is_none_or(|(_, b)| d < b) {
+                best = Some((lag, d));
+            }
+        }
+    }
+    best
+}
+
 /// Mean of `|y_sim(T) − y_exp| / y_exp` over the measured points with `lo ≤ T ≤ hi` that the
 /// simulated curve covers, and how many there were (`None` without any).
 pub fn mean_relative_deviation(

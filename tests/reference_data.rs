@@ -4,7 +4,9 @@
 //! (the check that catches the printed Re = 3200 entry `−0.86636`), and, at Re ≥ 3200, a nearly
 //! linear core (the check that catches the printed sign of Re = 10 000's `u(0.5) = +0.03111`).
 
-use gpm::reference::{ghia, parse_two_columns, rms_max, CentrelineTable, GHIA_OMITTED, GHIA_RE};
+use gpm::reference::{
+    self, ghia, parse_two_columns, rms_max, CentrelineTable, GHIA_OMITTED, GHIA_RE,
+};
 
 fn tables() -> Vec<CentrelineTable> {
     GHIA_RE
@@ -397,4 +399,30 @@ fn cube_reference_in_gpms_frame() {
     assert!(max(v) > 0.2 && max(v) < max(&g.v_horizontal));
     let at = |c: &[(f64, f64)], p: f64| c.iter().find(|q| q.0 == p).unwrap().1;
     assert!(at(v, 0.9063) < 0.0 && at(v, 0.1563) > 0.0);
+}
+
+/// The start-up delay fitted to Martin & Moyce's front: a curve that is their own measurements
+/// shifted earlier by a known delay (linear between the points, 0.01 apart in T) is found
+/// delayed by it, with a deviation near zero; the undelayed measurements give no delay.
+#[test]
+fn the_fitted_front_delay_recovers_a_known_shift() {
+    let mm = reference::martin_moyce();
+    let curve = |shift: f64| -> Vec<(f64, f64)> {
+        (0..=400)
+            .map(|k| k as f64 * 0.01)
+            .filter_map(|t| reference::interpolate(&mm.front, t + shift).map(|z| (t, z)))
+            .collect()
+    };
+    for shift in [0.0, 0.175, 0.3] {
+        let (lag, dev) = reference::best_delay(&curve(shift), &mm.front, 1.0, 3.0, 1.0).unwrap();
+        assert!((lag - shift).abs() < 2e-3, "shift {shift}: fitted {lag}");
+        assert!(dev < 2e-3, "shift {shift}: deviation {dev}");
+        // without the delay the shifted curve is that much ahead
+        let (raw, points) =
+            reference::mean_relative_deviation(&curve(shift), &mm.front, 1.0, 3.0).unwrap();
+        assert_eq!(points, 11);
+        if shift > 0.0 {
+            assert!(raw > 0.05, "shift {shift}: raw deviation {raw}");
+        }
+    }
 }
