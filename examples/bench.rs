@@ -17,7 +17,8 @@
 //! matrix is compared with a stream copy measured in the same process (`spmv.csv`:
 //! `d,n_particles,frame,solver,reuse,threads,matrix_mb,spmv_gbs,copy_gbs,ratio`). The growth of the time per step
 //! with N (the exponent of a least-squares power law per dimension and frame) is written to
-//! `scaling.csv`.
+//! `scaling.csv`. The switch study (full run only) flips each reuse switch of a moving step
+//! alone against the defaults on the moving 2D 10⁵ case (`switches.csv`).
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -54,6 +55,10 @@ struct Args {
     /// value times the settled steps a long run is made of.
     #[arg(long, default_value_t = 3)]
     warmup: usize,
+    /// Run only the reuse-switch study (`switches.csv`), with this many alternated pairs per
+    /// switch (the full run takes two).
+    #[arg(long)]
+    switches: Option<usize>,
     /// Run one configuration and print its JSON (used by the parent process).
     #[arg(long, hide = true)]
     child: Option<String>,
@@ -70,7 +75,50 @@ struct Case {
     threads: usize,
     steps: usize,
     warmup: usize,
+    /// One reuse switch set against its default ([`SWITCHES`]; none: the defaults).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    flip: Option<String>,
 }
+
+/// The reuse switches of a moving step, each flipped alone against the defaults by the switch
+/// study (`switches.csv`): name, whether it is on by default, what it saves.
+const SWITCHES: [(&str, bool, &str); 7] = [
+    (
+        "skin",
+        true,
+        "neighbour candidates kept between searches (skin 0.3h; off: 0)",
+    ),
+    (
+        "warm_start",
+        true,
+        "Poisson and viscous CG start from extrapolated solutions",
+    ),
+    (
+        "amg_lag",
+        true,
+        "AMG hierarchy kept while the iteration rate holds",
+    ),
+    (
+        "amg_reuse_values",
+        true,
+        "AMG refresh by Galerkin products on the kept aggregates",
+    ),
+    (
+        "amg_reuse_aggregates",
+        true,
+        "AMG aggregates kept when the pattern changes",
+    ),
+    (
+        "reuse_diagnostics",
+        true,
+        "connectivity and c0 kept while the pair set holds",
+    ),
+    (
+        "pattern_reuse",
+        false,
+        "Poisson pattern of the candidate pairs, kept until the next search",
+    ),
+];
 
 impl Case {
     /// The columns that name the case in the CSV files: `d,n_particles,frame,solver,reuse,threads`.
@@ -146,6 +194,18 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     projection.scheme = Scheme::Rotational;
     projection.solve = solve_params(c.solver, c.reuse);
     projection.reuse_diagnostics = c.reuse;
+    let mut skin = if c.reuse { 0.3 } else { 0.0 };
+    match c.flip.as_deref() {
+        None => {}
+        Some("skin") => skin = 0.0,
+        Some("warm_start") => projection.solve.warm_start = false,
+        Some("amg_lag") => projection.solve.amg_lag = false,
+        Some("amg_reuse_values") => projection.solve.amg_reuse_values = false,
+        Some("amg_reuse_aggregates") => projection.solve.amg_reuse_aggregates = false,
+        Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
+        Some("pattern_reuse") => projection.solve.pattern_within_h = false,
+        Some(other) => bail!("unknown switch {other:?}"),
+    }
     let moving = c.frame == "moving";
     let params = FlowParams {
         projection,
@@ -165,7 +225,6 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         pair_weights: Default::default(),
         dx,
     };
-    let skin = if c.reuse { 0.3 } else { 0.0 };
     let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, skin);
     Ok(Simulation::new(
         p,
@@ -341,6 +400,9 @@ fn main_inner(a: Args) -> Result<()> {
         return child(spec);
     }
     std::fs::create_dir_all(&a.out)?;
+    if a.switches.is_some() {
+        return switches(&a);
+    }
     let mut cases = Vec::new();
     let case = |d, n, frame: &str, solver, reuse, threads, steps| Case {
         d,
@@ -351,6 +413,7 @@ fn main_inner(a: Args) -> Result<()> {
         threads,
         steps,
         warmup: a.warmup,
+        flip: None,
     };
     if a.quick {
         for frame in ["fixed", "moving"] {
@@ -441,7 +504,67 @@ fn main_inner(a: Args) -> Result<()> {
     }
     println!("wrote {}", a.out.join("steps.csv").display());
     scaling(&a, &sizes)?;
+    if !a.quick {
+        switches(&a)?;
+    }
     cavity_reuse(&a)?;
+    Ok(())
+}
+
+/// Each reuse switch of [`SWITCHES`] flipped alone against the defaults on the moving 2D 10⁵
+/// Taylor–Green step (issue 17: every reuse switch pays on moving particles): the defaults and
+/// the flipped run alternated, two of each (`--switches K`: K), the fastest of each kept; printed and written
+/// to `switches.csv` (`d,n_particles,frame,switch,default_on,on_ms,off_ms,off_over_on`).
+fn switches(a: &Args) -> Result<()> {
+    let base = Case {
+        d: 2,
+        n_particles: 100_000,
+        frame: "moving".into(),
+        solver: SolverKind::Auto,
+        reuse: true,
+        threads: 2,
+        steps: 10,
+        warmup: a.warmup,
+        flip: None,
+    };
+    let mut csv = std::fs::File::create(a.out.join("switches.csv"))?;
+    writeln!(
+        csv,
+        "d,n_particles,frame,switch,default_on,on_ms,off_ms,off_over_on"
+    )?;
+    let rounds = a.switches.unwrap_or(2).max(1);
+    println!("reuse switches, each flipped alone (2D 10⁵ moving, ms per step, best of {rounds}):");
+    for (name, default_on, what) in SWITCHES {
+        let flipped = Case {
+            flip: Some(name.to_string()),
+            ..base.clone()
+        };
+        let (mut t_default, mut t_flipped) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..rounds {
+            t_default = t_default.min(spawn(&base)?.total);
+            t_flipped = t_flipped.min(spawn(&flipped)?.total);
+        }
+        let (on, off) = if default_on {
+            (t_default, t_flipped)
+        } else {
+            (t_flipped, t_default)
+        };
+        writeln!(
+            csv,
+            "2,100000,moving,{name},{default_on},{:.2},{:.2},{:.3}",
+            on * 1e3,
+            off * 1e3,
+            off / on
+        )?;
+        println!(
+            "  {name:<21} on {:7.1}  off {:7.1}  off/on {:5.2}  (default {}; {what})",
+            on * 1e3,
+            off * 1e3,
+            off / on,
+            if default_on { "on" } else { "off" }
+        );
+    }
+    println!("wrote {}", a.out.join("switches.csv").display());
     Ok(())
 }
 
