@@ -36,7 +36,9 @@ pub struct FreeSurface {
     /// is then `p_b = −δ ρ n·(∇p/ρ)_b` (`n` the outward normal, `∇p` of the last step), the
     /// value that puts `p = 0` on the surface rather than at the particle; 0 gives the paper's
     /// `p_b = 0` (measured on the tank at rest, n = 40: pressure error 2.2 % with it at 0, the
-    /// offset `ρ g Δx/2` of every particle).
+    /// offset `ρ g Δx/2` of every particle). The solve holds the band at `p_b` in every
+    /// scheme (the incremental ones through `pⁿ + φ` with `φ = 0`, the non-incremental one as
+    /// the band's Dirichlet values).
     pub surface_offset: f64,
 }
 
