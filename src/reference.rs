@@ -198,10 +198,10 @@ pub fn interpolate(curve: &[(f64, f64)], t: f64) -> Option<f64> {
 
 /// The delay `ΔT ∈ [0, max_lag]` (steps of 0.001) of the simulated curve that brings it nearest
 /// to the measured points over `lo ≤ T ≤ hi`: the one that minimises the mean relative
-/// deviation of `y_sim(T − ΔT)` from `y_exp(T)` (every such point covered by the delayed curve,
-/// as far as `lo − ΔT` reaches back to its start), with that deviation; `None` when no delay
-/// covers a point. A diagnostic of a start-up delay (an experiment's release that is not
-/// instantaneous), not an error measure: it is fitted to the measurements.
+/// deviation of `y_sim(T − ΔT)` from `y_exp(T)` (over the points whose `T − ΔT` the simulated
+/// curve covers), with that deviation; `None` when no delay covers a point. A diagnostic of a
+/// start-up delay (an experiment's release that is not instantaneous), not an error measure:
+/// it is fitted to the measurements.
 pub fn best_delay(
     sim: &[(f64, f64)],
     measured: &[(f64, f64)],
@@ -210,17 +210,13 @@ pub fn best_delay(
     max_lag: f64,
 ) -> Option<(f64, f64)> {
     let steps = (max_lag / 1e-3).round() as usize;
-    let mut best: Option<(f64, f64)> = None;
-    for k in 0..=steps {
-        let lag = k as f64 * 1e-3;
-        let delayed: Vec<(f64, f64)> = sim.iter().map(|&(t, y)| (t + lag, y)).collect();
-        if let Some((d, _)) = mean_relative_deviation(&delayed, measured, lo, hi) {
-            if best.is_none_or(|(_, b)| d < b) {
-                best = Some((lag, d));
-            }
-        }
-    }
-    best
+    (0..=steps)
+        .map(|k| k as f64 * 1e-3)
+        .filter_map(|lag| delayed_deviation(sim, measured, lo, hi, lag).map(|(d, _)| (lag, d)))
+        .fold(None, |best: Option<(f64, f64)>, (lag, d)| match best {
+            Some((_, b)) if b <= d => best,
+            _ => Some((lag, d)),
+        })
 }
 
 /// Mean of `|y_sim(T) − y_exp| / y_exp` over the measured points with `lo ≤ T ≤ hi` that the
@@ -231,10 +227,23 @@ pub fn mean_relative_deviation(
     lo: f64,
     hi: f64,
 ) -> Option<(f64, usize)> {
-    let d: Vec<f64> = measured
-        .iter()
-        .filter(|&&(t, _)| t >= lo && t <= hi)
-        .filter_map(|&(t, y)| interpolate(sim, t).map(|s| ((s - y) / y).abs()))
-        .collect();
-    (!d.is_empty()).then(|| (d.iter().sum::<f64>() / d.len() as f64, d.len()))
+    delayed_deviation(sim, measured, lo, hi, 0.0)
+}
+
+/// [`mean_relative_deviation`] of the simulated curve delayed by `lag`: `y_sim(T − lag)`.
+fn delayed_deviation(
+    sim: &[(f64, f64)],
+    measured: &[(f64, f64)],
+    lo: f64,
+    hi: f64,
+    lag: f64,
+) -> Option<(f64, usize)> {
+    let (mut sum, mut count) = (0.0, 0);
+    for &(t, y) in measured.iter().filter(|&&(t, _)| t >= lo && t <= hi) {
+        if let Some(s) = interpolate(sim, t - lag) {
+            sum += ((s - y) / y).abs();
+            count += 1;
+        }
+    }
+    (count > 0).then(|| (sum / count as f64, count))
 }
