@@ -12,7 +12,7 @@
 //!
 //! The walls are free-slip by default, as in 2D: with no-slip walls the runs reach
 //! T = 3 (2026-11-28, n = 8 … 26), but the band particles at the wall `x = 0` hang there as a
-//! film (column height 21–25 % off the experiment, 2 % free-slip) and the particles of the
+//! film (column height 22–25 % off the experiment, 2 % free-slip) and the particles of the
 //! front's bottom corners are thrown back into the water, held only by the wall margin
 //! (README, the 3D dam break).
 //!
