@@ -1067,8 +1067,8 @@ fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit
     // K assembled on the pairs within h (a moving run's pattern, rebuilt each step with the
     // diagonal inserted into the neighbours' sorted row) against K on the candidate pattern
     // (skin pairs stored as zeros, rows filled by `fill`): the same nonzero entries, the same
-    // bits — on a box with wall images (rows re-sorted) and on a periodic lattice (rows
-    // already sorted)
+    // bits — on a box with wall images (rows re-sorted) and on a periodic lattice (every
+    // particle a fluid unknown: the rows written in place at `nl.offsets()[u] + u`)
     use gpm::neighbors::{NeighborConfig, Periodicity};
     let periodic = {
         let n = 20;

@@ -371,6 +371,13 @@ impl Assembly {
             return Ok(rebuilt);
         }
         self.number_unknowns(role);
+        if sigma.is_none()
+            && self.particle.len() == role.len()
+            && self.fill_all_fluid(nl, vol, mass, c)
+        {
+            self.set_pattern_built(key, nl, vol, mass, c, sigma);
+            return Ok(true);
+        }
         let two_d = 2.0 * D as f64;
         let unknown = &self.unknown;
         let particle = &self.particle;
@@ -449,6 +456,20 @@ impl Assembly {
         gather_parts(&mut self.cols, &bounds, &cols);
         gather_parts(&mut self.values, &bounds, &vals);
         self.chunks.0 = parts;
+        self.set_pattern_built(key, nl, vol, mass, c, sigma);
+        Ok(true)
+    }
+
+    /// The bookkeeping after [`Self::update_with_values`] built a new pattern with its values.
+    fn set_pattern_built<const D: usize>(
+        &mut self,
+        key: (u64, u64, u64),
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        mass: f64,
+        c: f64,
+        sigma: Option<&[f64]>,
+    ) {
         self.key = Some(key);
         self.pattern_id += 1;
         self.derived_from = None;
@@ -461,7 +482,69 @@ impl Assembly {
             c: c.to_bits(),
             sigma: sigma.map(|s| s.to_vec()).unwrap_or_default(),
         });
-        Ok(true)
+    }
+
+    /// [`Self::update_with_values`] when every particle is a fluid unknown (numbered in
+    /// particle order, no ghosts, no band — a periodic box): row `u` is then the neighbour
+    /// list's row `u` (sorted, no repeats) with the diagonal inserted, so its place in the
+    /// matrix is known before it is filled (`offsets[u] = nl.offsets()[u] + u`) and the rows
+    /// are written in place, in parallel, without the general path's per-chunk rows and their
+    /// copy. The same entries, values and sums in the same order (the same bits). Returns
+    /// false, having written nothing that counts, when some pair's entry is exactly zero (the
+    /// general path leaves such entries out of the pattern).
+    fn fill_all_fluid<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        mass: f64,
+        c: f64,
+    ) -> bool {
+        let n = self.particle.len();
+        let nlo = nl.offsets();
+        if nlo.len() != n + 1 {
+            return false;
+        }
+        self.offsets.clear();
+        self.offsets.extend((0..=n).map(|u| nlo[u] + u));
+        let m = nlo[n] + n;
+        self.cols.resize(m, 0);
+        self.values.resize(m, 0.0);
+        self.diag.resize(n, 0);
+        let two_d = 2.0 * D as f64;
+        let offsets = &self.offsets;
+        let bounds: Vec<usize> = (0..=n.div_ceil(ROW_CHUNK))
+            .map(|ch| offsets[(ch * ROW_CHUNK).min(n)])
+            .collect();
+        let (idx, wr2) = (nl.indices(), nl.wr2());
+        split_by(&mut self.cols, &bounds)
+            .into_par_iter()
+            .zip(split_by(&mut self.values, &bounds))
+            .zip(self.diag.par_chunks_mut(ROW_CHUNK))
+            .enumerate()
+            .all(|(ch, ((cols, vals), diag))| {
+                let base = bounds[ch];
+                for (du, u) in (ch * ROW_CHUNK..((ch + 1) * ROW_CHUNK).min(n)).enumerate() {
+                    let row = nl.row(u);
+                    let js = &idx[row.clone()];
+                    let at = js.partition_point(|&j| (j as usize) < u);
+                    let start = offsets[u] - base;
+                    let mut dsum = 0.0;
+                    for (e, (&j, &q)) in js.iter().zip(&wr2[row]).enumerate() {
+                        let a = c * two_d * vol[u] * vol[j as usize] * q;
+                        if a == 0.0 {
+                            return false;
+                        }
+                        dsum += a;
+                        let o = start + e + (e >= at) as usize;
+                        cols[o] = j;
+                        vals[o] = -a;
+                    }
+                    cols[start + at] = u as u32;
+                    vals[start + at] = dsum + mass * vol[u];
+                    diag[du] = offsets[u] + at;
+                }
+                true
+            })
     }
 
     /// Fills the values of `K` for the current pair data (pattern must be up to date).
