@@ -647,3 +647,66 @@ fn periodic_lattices_with_pairs_at_exactly_h_give_a_symmetric_list() {
     check::<3>(9, 3.0, 0.3);
     check::<3>(10, 3.0, 0.0);
 }
+
+/// Moves every particle of a periodic cloud by less than `skin / 2` and wraps it back into the
+/// box (some cross a face), re-measures without a search, and checks every pair's displacement
+/// and `r²` bit for bit against the minimum image of `x_j − x_i` — the rows deep inside the box
+/// skip `min_image` in the measure, the others do not, and both must give the same bits.
+fn moved_and_wrapped<const D: usize>(n: usize, h: f64, skin: f64, seed: u64) {
+    let cfg = NeighborConfig::new(Weight::WendlandC2, h, skin)
+        .with_periodicity(Periodicity::all([0.0; D], [1.0; D]));
+    let mut x = random_cloud::<D>(n, seed);
+    let mut nl = NeighborList::new(cfg).unwrap();
+    assert!(nl.update(&x).unwrap().rebuilt);
+    let dirs = random_cloud::<D>(n, seed + 1);
+    let mut crossed = 0;
+    for (xi, di) in x.iter_mut().zip(&dirs) {
+        for a in 0..D {
+            let moved = xi[a] + 0.49 * skin * (2.0 * di[a] - 1.0) / (D as f64).sqrt();
+            let wrapped = moved.rem_euclid(1.0);
+            crossed += (wrapped != moved) as usize;
+            xi[a] = wrapped;
+        }
+    }
+    assert!(crossed > 0, "no particle crossed a face");
+    assert!(
+        !nl.update(&x).unwrap().rebuilt,
+        "the moves rebuilt the candidates"
+    );
+    assert_same(
+        &nl,
+        &reference(&cfg, &x),
+        &format!("{D}D moved and wrapped"),
+    );
+    let per = cfg.periodic;
+    let (mut deep, mut crossing) = (0, 0);
+    for i in 0..nl.len() {
+        if x[i].iter().all(|&c| c > 0.25 && c < 0.75) {
+            deep += 1;
+        }
+        for k in nl.row(i) {
+            let j = nl.indices()[k] as usize;
+            let mut d: [f64; D] = std::array::from_fn(|a| x[j][a] - x[i][a]);
+            crossing += d.iter().any(|v| v.abs() > 0.5) as usize;
+            per.min_image(&mut d);
+            for a in 0..D {
+                assert_eq!(
+                    nl.dx()[k][a].to_bits(),
+                    d[a].to_bits(),
+                    "{D}D: dx of pair ({i},{j}) axis {a}"
+                );
+            }
+            assert_eq!(nl.r2()[k].to_bits(), gpm::math::norm2(&d).to_bits());
+        }
+    }
+    assert!(
+        deep > 0 && crossing > 0,
+        "{deep} deep rows, {crossing} crossing pairs"
+    );
+}
+
+#[test]
+fn moved_and_wrapped_particles_measure_the_minimum_image_bit_for_bit() {
+    moved_and_wrapped::<2>(3000, 0.05, 0.015, 41);
+    moved_and_wrapped::<3>(4000, 0.12, 0.03, 43);
+}
