@@ -689,10 +689,10 @@ fn moved_and_wrapped<const D: usize>(n: usize, h: f64, skin: f64, seed: u64) {
             let mut d: [f64; D] = std::array::from_fn(|a| x[j][a] - x[i][a]);
             crossing += d.iter().any(|v| v.abs() > 0.5) as usize;
             per.min_image(&mut d);
-            for a in 0..D {
+            for (a, (got, want)) in nl.dx()[k].iter().zip(&d).enumerate() {
                 assert_eq!(
-                    nl.dx()[k][a].to_bits(),
-                    d[a].to_bits(),
+                    got.to_bits(),
+                    want.to_bits(),
                     "{D}D: dx of pair ({i},{j}) axis {a}"
                 );
             }
