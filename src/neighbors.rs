@@ -63,12 +63,13 @@ impl<const D: usize> Periodicity<D> {
         (0..D)
             .all(|k| self.len[k] == 0.0 || (x[k] >= self.lo[k] && x[k] < self.lo[k] + self.len[k]))
     }
-    /// True when `x` lies more than `margin` inside every periodic face.
+    /// Per axis: true when the axis is periodic and `x` lies within `margin` of one of its
+    /// faces (not more than `margin` inside).
     #[inline]
-    fn deep_inside(&self, x: &[f64; D], margin: f64) -> bool {
-        (0..D).all(|k| {
-            self.len[k] == 0.0
-                || (x[k] > self.lo[k] + margin && x[k] < self.lo[k] + self.len[k] - margin)
+    fn near_faces(&self, x: &[f64; D], margin: f64) -> [bool; D] {
+        std::array::from_fn(|k| {
+            self.len[k] > 0.0
+                && !(x[k] > self.lo[k] + margin && x[k] < self.lo[k] + self.len[k] - margin)
         })
     }
     /// Replaces a displacement by its minimum image.
@@ -80,6 +81,29 @@ impl<const D: usize> Periodicity<D> {
                 let v = dx[k];
                 // one correction covers |v| ≤ 1.5 l (positions within a period of each other);
                 // `round` (a libm call here) only for the rare larger offsets
+                if v > 0.5 * l {
+                    dx[k] = if v <= 1.5 * l {
+                        v - l
+                    } else {
+                        v - l * (v / l).round()
+                    };
+                } else if v < -0.5 * l {
+                    dx[k] = if v >= -1.5 * l {
+                        v + l
+                    } else {
+                        v - l * (v / l).round()
+                    };
+                }
+            }
+        }
+    }
+    /// [`min_image`](Self::min_image) on the axes with `axes[k]` only.
+    #[inline(always)]
+    fn min_image_on(&self, dx: &mut [f64; D], axes: &[bool; D]) {
+        for k in 0..D {
+            let l = self.len[k];
+            if axes[k] && l > 0.0 {
+                let v = dx[k];
                 if v > 0.5 * l {
                     dx[k] = if v <= 1.5 * l {
                         v - l
@@ -598,20 +622,28 @@ impl<const D: usize> NeighborList<D> {
         let per = self.config.periodic;
         let co = &self.cand_offsets;
         let ci = &self.cand_indices;
-        let disp = |i: usize, j: usize| -> [f64; D] {
-            let mut d: [f64; D] = std::array::from_fn(|k| x[j][k] - x[i][k]);
-            per.min_image(&mut d);
-            d
-        };
-        // Rows whose particle lies deeper inside every periodic face than any candidate can be
-        // from it skip the minimum image (a quarter of a 3D measure's time): every candidate
-        // was within `h + skin` at the search and each particle has moved less than `skin / 2`
-        // since, so with all positions in the box the plain difference is the minimum image
+        // A row skips the minimum image on each periodic axis whose faces its particle lies
+        // farther from than any candidate can be from it (without the minimum image a 3D
+        // measure takes a quarter less time): every candidate was within `h + skin` at the
+        // search and each particle has moved less than `skin / 2` since, so with all positions
+        // in the box the plain difference along such an axis is the minimum image
         // (`|d_k| < len_k / 2`: `min_image` would return it unchanged — the same bits)
         let reach = ((self.config.h + self.config.skin) * (1.0 + 1e-9) + self.config.skin) * 1.001;
         let wrapped = !per.any() || x.par_iter().all(|p| per.inside(p));
-        let plain = |i: usize| wrapped && per.deep_inside(&x[i], reach);
+        // which axes of row i need the minimum image (all when some position is outside)
+        let near = |i: usize| -> [bool; D] {
+            if wrapped {
+                per.near_faces(&x[i], reach)
+            } else {
+                std::array::from_fn(|k| per.len[k] > 0.0)
+            }
+        };
         let sub = |i: usize, j: usize| -> [f64; D] { std::array::from_fn(|k| x[j][k] - x[i][k]) };
+        let part = |i: usize, j: usize, axes: &[bool; D]| -> [f64; D] {
+            let mut d = sub(i, j);
+            per.min_image_on(&mut d, axes);
+            d
+        };
         // pass 1: which candidates are within h (a byte each, for pass 2) and the counts per
         // row; pass 2 measures the kept pairs again (the same arithmetic: the same bits)
         let mut keep = std::mem::take(&mut self.cand_keep);
@@ -632,10 +664,11 @@ impl<const D: usize> NeighborList<D> {
                         &ci[co[i]..co[i + 1]],
                         &mut flags[co[i] - base..co[i + 1] - base],
                     );
-                    out.push(if plain(i) {
+                    let axes = near(i);
+                    out.push(if axes == [false; D] {
                         flag_row(cands, fl, h2, |j| sub(i, j))
                     } else {
-                        flag_row(cands, fl, h2, |j| disp(i, j))
+                        flag_row(cands, fl, h2, |j| part(i, j, &axes))
                     });
                 }
                 out
@@ -678,10 +711,11 @@ impl<const D: usize> NeighborList<D> {
                     let k0 = k;
                     let (cands, fl) = (&ci[co[i]..co[i + 1]], &keep[co[i]..co[i + 1]]);
                     let (idx, dxo, r2o) = (&mut idx[k0..], &mut dxo[k0..], &mut r2o[k0..]);
-                    let (m, zero) = if plain(i) {
+                    let axes = near(i);
+                    let (m, zero) = if axes == [false; D] {
                         fill_row(cands, fl, idx, dxo, r2o, |j| sub(i, j))
                     } else {
-                        fill_row(cands, fl, idx, dxo, r2o, |j| disp(i, j))
+                        fill_row(cands, fl, idx, dxo, r2o, |j| part(i, j, &axes))
                     };
                     if let (Some(j), None) = (zero, bad) {
                         bad = Some((i, j));

@@ -650,8 +650,8 @@ fn periodic_lattices_with_pairs_at_exactly_h_give_a_symmetric_list() {
 
 /// Moves every particle of a periodic cloud by less than `skin / 2` and wraps it back into the
 /// box (some cross a face), re-measures without a search, and checks every pair's displacement
-/// and `r²` bit for bit against the minimum image of `x_j − x_i` — the rows deep inside the box
-/// skip `min_image` in the measure, the others do not, and both must give the same bits.
+/// and `r²` bit for bit against the minimum image of `x_j − x_i` — a row skips `min_image` on
+/// the axes whose faces its particle is far from, and must give the same bits.
 fn moved_and_wrapped<const D: usize>(n: usize, h: f64, skin: f64, seed: u64) {
     let cfg = NeighborConfig::new(Weight::WendlandC2, h, skin)
         .with_periodicity(Periodicity::all([0.0; D], [1.0; D]));
