@@ -575,7 +575,7 @@ impl<const D: usize> NeighborList<D> {
                         |_, i, row| {
                             for shift in image_shifts(&xw[i], &per, radius) {
                                 let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
-                                grid.within(&xw, &q, r2, |j| row.push(j));
+                                grid.within(&q, r2, |j| row.push(j));
                             }
                         },
                     )
@@ -925,13 +925,15 @@ fn bounding_box<const D: usize>(x: &[[f64; D]]) -> ([f64; D], [f64; D]) {
 }
 
 /// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
-/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`.
+/// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`, and of `pos` their
+/// positions (copied in cell order, so that a query streams through them).
 struct CellGrid<const D: usize> {
     lo: [f64; D],
     inv: f64,
     dims: [usize; D],
     start: Vec<u32>,
     items: Vec<u32>,
+    pos: Vec<[f64; D]>,
 }
 
 impl<const D: usize> CellGrid<D> {
@@ -975,17 +977,21 @@ impl<const D: usize> CellGrid<D> {
             items[fill[c as usize] as usize] = i as u32;
             fill[c as usize] += 1;
         }
+        let pos = items.par_iter().map(|&i| x[i as usize]).collect();
         CellGrid {
             lo,
             inv,
             dims,
             start,
             items,
+            pos,
         }
     }
 
-    /// Calls `visit(j)` for every point `j` of `x` with `|x_j − q|² ≤ r2`.
-    fn within(&self, x: &[[f64; D]], q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
+    /// Calls `visit(j)` for every point `j` of the grid with `|x_j − q|² ≤ r2`. The cells of
+    /// one run along axis 0 are consecutive in the cell order: each run is one contiguous
+    /// stretch of `pos`.
+    fn within(&self, q: &[f64; D], r2: f64, mut visit: impl FnMut(u32)) {
         let r = r2.sqrt();
         let mut a = [0usize; D];
         let mut b = [0usize; D];
@@ -998,17 +1004,18 @@ impl<const D: usize> CellGrid<D> {
             a[k] = lo.max(0.0) as usize;
             b[k] = (hi as usize).min(self.dims[k] - 1);
         }
-        // odometer over the cells a..=b, axis 0 fastest (the grid's row-major order)
+        // odometer over the runs (cells a_0..=b_0 at each c_1..c_{D−1} of a..=b), the
+        // grid's row-major order
         let mut c = a;
         loop {
             let mut cell = 0;
-            for k in (0..D).rev() {
+            for k in (1..D).rev() {
                 cell = cell * self.dims[k] + c[k];
             }
-            let s = self.start[cell] as usize;
-            let e = self.start[cell + 1] as usize;
-            for &j in &self.items[s..e] {
-                let p = &x[j as usize];
+            cell *= self.dims[0];
+            let s = self.start[cell + a[0]] as usize;
+            let e = self.start[cell + b[0] + 1] as usize;
+            for (p, &j) in self.pos[s..e].iter().zip(&self.items[s..e]) {
                 let mut d2 = 0.0;
                 for k in 0..D {
                     let t = p[k] - q[k];
@@ -1018,9 +1025,9 @@ impl<const D: usize> CellGrid<D> {
                     visit(j);
                 }
             }
-            let mut k = 0;
+            let mut k = 1;
             loop {
-                if k == D {
+                if k >= D {
                     return;
                 }
                 if c[k] < b[k] {
