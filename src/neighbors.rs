@@ -556,14 +556,14 @@ impl<const D: usize> NeighborList<D> {
                         })?;
                     let init = || tree.create_scratch::<SquaredEuclidean<f64>>();
                     candidate_rows(n, &mut rows, init, |scratch, i, row| {
-                        for shift in image_shifts(&xw[i], &per, radius) {
+                        for_image_shifts(&xw[i], &per, radius, |shift| {
                             let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
                             tree.query(&q)
                                 .within::<SquaredEuclidean<f64>>(r2)
                                 .unsorted()
                                 .with_scratch(scratch)
                                 .visit(|nb| row.push(nb.item));
-                        }
+                        });
                     })
                 }
                 Search::CellGrid => {
@@ -573,10 +573,10 @@ impl<const D: usize> NeighborList<D> {
                         &mut rows,
                         || (),
                         |_, i, row| {
-                            for shift in image_shifts(&xw[i], &per, radius) {
+                            for_image_shifts(&xw[i], &per, radius, |shift| {
                                 let q: [f64; D] = std::array::from_fn(|k| xw[i][k] + shift[k]);
                                 grid.within(&q, r2, |j| row.push(j));
-                            }
+                            });
                         },
                     )
                 }
@@ -851,33 +851,49 @@ fn check_finite<const D: usize>(x: &[[f64; D]]) -> Result<(), InputError> {
     Ok(())
 }
 
-/// The periodic image shifts under which a ball of `radius` around `x` (already wrapped) can
-/// reach across the box: always the zero shift, plus `±len` on axes where `x` is within `radius`
-/// of a face, in every combination.
-fn image_shifts<const D: usize>(x: &[f64; D], per: &Periodicity<D>, radius: f64) -> Vec<[f64; D]> {
-    let mut shifts = vec![[0.0; D]];
+/// Calls `visit` with each periodic image shift under which a ball of `radius` around `x`
+/// (already wrapped) can reach across the box: the zero shift, and `±len` on axes where `x` is
+/// within `radius` of a face, in every combination.
+fn for_image_shifts<const D: usize>(
+    x: &[f64; D],
+    per: &Periodicity<D>,
+    radius: f64,
+    mut visit: impl FnMut(&[f64; D]),
+) {
+    // per axis: no shift, and a period up or down when `x` lies within `radius` of a face
+    let mut opts = [[0.0f64; 3]; D];
+    let mut count = [1usize; D];
     for k in 0..D {
         let l = per.len[k];
         if l <= 0.0 {
             continue;
         }
-        let mut extra = Vec::new();
         if x[k] - per.lo[k] < radius {
-            extra.push(l);
+            opts[k][count[k]] = l;
+            count[k] += 1;
         }
         if per.lo[k] + l - x[k] < radius {
-            extra.push(-l);
-        }
-        let base = shifts.clone();
-        for e in extra {
-            for s in &base {
-                let mut t = *s;
-                t[k] = e;
-                shifts.push(t);
-            }
+            opts[k][count[k]] = -l;
+            count[k] += 1;
         }
     }
-    shifts
+    // every combination, by an odometer (no allocation: called once per particle and search)
+    let mut c = [0usize; D];
+    loop {
+        visit(&std::array::from_fn(|k| opts[k][c[k]]));
+        let mut k = 0;
+        loop {
+            if k == D {
+                return;
+            }
+            c[k] += 1;
+            if c[k] < count[k] {
+                break;
+            }
+            c[k] = 0;
+            k += 1;
+        }
+    }
 }
 
 /// The candidate rows of particles `0..n`, in parallel chunks of `rows` (one per 1024
