@@ -100,7 +100,7 @@ const SWITCHES: [(&str, bool, &str); 7] = [
     ),
     (
         "amg_reuse_values",
-        true,
+        false,
         "AMG refresh by Galerkin products on the kept aggregates",
     ),
     (
@@ -200,7 +200,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("skin") => skin = 0.0,
         Some("warm_start") => projection.solve.warm_start = false,
         Some("amg_lag") => projection.solve.amg_lag = false,
-        Some("amg_reuse_values") => projection.solve.amg_reuse_values = false,
+        Some("amg_reuse_values") => projection.solve.amg_reuse_values = true,
         Some("amg_reuse_aggregates") => projection.solve.amg_reuse_aggregates = false,
         Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,

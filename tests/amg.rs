@@ -484,6 +484,7 @@ fn lagged_hierarchy_is_refreshed_when_iterations_grow() {
     let p = SolveParams {
         solver: SolverKind::Amg,
         warm_start: false,
+        amg_reuse_values: true,
         ..SolveParams::default()
     };
     let mut u = vec![0.0; f.len()];

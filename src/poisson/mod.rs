@@ -119,8 +119,16 @@ pub struct SolveParams {
     /// against an AMG-CG solve, measured on the Lagrangian cavity and Taylor–Green vortex
     /// (2 threads): 3 334 unknowns 7.6 vs 10.9 ms, 10 000 unknowns 66 vs 30 ms.
     pub moving_direct_limit: usize,
-    /// AMG: when only the matrix values changed (same pattern), recompute the Galerkin operators
-    /// on the existing aggregates and prolongators instead of rebuilding (default true).
+    /// AMG: when only the matrix values changed (same pattern), or a lagged hierarchy asks for a
+    /// refresh, recompute the Galerkin operators on the existing aggregates and prolongators
+    /// instead of rebuilding (default false since 2026-11-28). On moving particles the refresh
+    /// on stale aggregates costs more iterations than it saves in setup: Lagrangian
+    /// Taylor–Green n = 100 to t = 2, 7 205 AMG-CG iterations with it against 6 061 without
+    /// (10.4–13.8 s against 10.5–12.0 s), the Lagrangian Re 100 cavity n = 100 to t = 2,
+    /// 13 142 against 11 034 (23.3–30.9 s against 21.7–23.4 s); the moving Taylor–Green bench
+    /// never asks for a refresh in 40 steps (the same iterations either way). It pays where the
+    /// values change and the pattern's geometry does not (a uniform rescaling of the volumes
+    /// gives the fresh build's iterations, `tests/amg.rs`).
     pub amg_reuse_values: bool,
     /// AMG: when only the matrix values changed, keep the hierarchy (lagged) while CG's
     /// iterations per decade of residual reduction stay within `amg_lag_factor` times those
@@ -218,7 +226,7 @@ impl Default for SolveParams {
             reuse_values: true,
             direct_limit: 50_000,
             moving_direct_limit: 4_000,
-            amg_reuse_values: true,
+            amg_reuse_values: false,
             amg_lag: true,
             amg_lag_factor: 1.5,
             amg_reuse_aggregates: true,
