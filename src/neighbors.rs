@@ -76,24 +76,8 @@ impl<const D: usize> Periodicity<D> {
     #[inline(always)]
     pub fn min_image(&self, dx: &mut [f64; D]) {
         for k in 0..D {
-            let l = self.len[k];
-            if l > 0.0 {
-                let v = dx[k];
-                // one correction covers |v| ≤ 1.5 l (positions within a period of each other);
-                // `round` (a libm call here) only for the rare larger offsets
-                if v > 0.5 * l {
-                    dx[k] = if v <= 1.5 * l {
-                        v - l
-                    } else {
-                        v - l * (v / l).round()
-                    };
-                } else if v < -0.5 * l {
-                    dx[k] = if v >= -1.5 * l {
-                        v + l
-                    } else {
-                        v - l * (v / l).round()
-                    };
-                }
+            if self.len[k] > 0.0 {
+                dx[k] = min_image_1(dx[k], self.len[k]);
             }
         }
     }
@@ -101,22 +85,8 @@ impl<const D: usize> Periodicity<D> {
     #[inline(always)]
     fn min_image_on(&self, dx: &mut [f64; D], axes: &[bool; D]) {
         for k in 0..D {
-            let l = self.len[k];
-            if axes[k] && l > 0.0 {
-                let v = dx[k];
-                if v > 0.5 * l {
-                    dx[k] = if v <= 1.5 * l {
-                        v - l
-                    } else {
-                        v - l * (v / l).round()
-                    };
-                } else if v < -0.5 * l {
-                    dx[k] = if v >= -1.5 * l {
-                        v + l
-                    } else {
-                        v - l * (v / l).round()
-                    };
-                }
+            if axes[k] && self.len[k] > 0.0 {
+                dx[k] = min_image_1(dx[k], self.len[k]);
             }
         }
     }
@@ -785,6 +755,28 @@ fn fill_row<const D: usize>(
         }
     }
     (k, zero)
+}
+
+/// The minimum image of the offset `v` along an axis of period `l > 0`: one correction covers
+/// `|v| ≤ 1.5 l` (positions within a period of each other); `round` (a libm call here) only
+/// for the rare larger offsets.
+#[inline(always)]
+fn min_image_1(v: f64, l: f64) -> f64 {
+    if v > 0.5 * l {
+        if v <= 1.5 * l {
+            v - l
+        } else {
+            v - l * (v / l).round()
+        }
+    } else if v < -0.5 * l {
+        if v >= -1.5 * l {
+            v + l
+        } else {
+            v - l * (v / l).round()
+        }
+    } else {
+        v
+    }
 }
 
 /// The closest pair of particles, `(r, i, j)` with `i < j` (minimum image on periodic axes):
