@@ -83,7 +83,7 @@ const ROW_CHUNK: usize = 256;
 
 /// `values` (one per entry of the rows `offsets`) split at every `ROW_CHUNK`-th row: chunk
 /// `c` holds the entries of rows `c·ROW_CHUNK ..`, for a parallel fill by rows.
-fn row_chunks<'a>(offsets: &[usize], values: &'a mut [f64]) -> Vec<&'a mut [f64]> {
+fn row_chunks<'a, T>(offsets: &[usize], values: &'a mut [T]) -> Vec<&'a mut [T]> {
     let Some(n) = offsets.len().checked_sub(1) else {
         return Vec::new();
     };
@@ -512,17 +512,14 @@ impl Assembly {
         self.diag.resize(n, 0);
         let two_d = 2.0 * D as f64;
         let offsets = &self.offsets;
-        let bounds: Vec<usize> = (0..=n.div_ceil(ROW_CHUNK))
-            .map(|ch| offsets[(ch * ROW_CHUNK).min(n)])
-            .collect();
         let (idx, wr2) = (nl.indices(), nl.wr2());
-        split_by(&mut self.cols, &bounds)
+        row_chunks(offsets, &mut self.cols)
             .into_par_iter()
-            .zip(split_by(&mut self.values, &bounds))
+            .zip(row_chunks(offsets, &mut self.values))
             .zip(self.diag.par_chunks_mut(ROW_CHUNK))
             .enumerate()
             .all(|(ch, ((cols, vals), diag))| {
-                let base = bounds[ch];
+                let base = offsets[ch * ROW_CHUNK];
                 for (du, u) in (ch * ROW_CHUNK..((ch + 1) * ROW_CHUNK).min(n)).enumerate() {
                     let row = nl.row(u);
                     let js = &idx[row.clone()];
