@@ -59,7 +59,7 @@ impl<const D: usize> Periodicity<D> {
     }
     /// True when `x` lies in the box on every periodic axis, `lo ≤ x < lo + len`.
     #[inline]
-    pub fn inside(&self, x: &[f64; D]) -> bool {
+    fn inside(&self, x: &[f64; D]) -> bool {
         (0..D)
             .all(|k| self.len[k] == 0.0 || (x[k] >= self.lo[k] && x[k] < self.lo[k] + self.len[k]))
     }
