@@ -3,7 +3,6 @@
 use crate::neighbors::NeighborList;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 
 /// Cell-centred lattice points `lo + (k + ½) dx` with `k = 0, 1, …` covering the box
 /// `[lo, hi)` (the count per axis is `round((hi − lo) / dx)`), in lexicographic order
@@ -61,18 +60,20 @@ pub fn inside<const D: usize>(x: &[f64; D], lo: &[f64; D], hi: &[f64; D]) -> boo
 /// consistency factor `S_i = Σ_{j≠i} ω_j w_h(r_ij)` equal to one, so that `∇h`, `∇̂h·` and `Δh`
 /// approximate the derivatives themselves rather than `S` times them.
 pub fn number_density_volumes<const D: usize>(nl: &NeighborList<D>) -> Vec<f64> {
-    (0..nl.len())
-        .into_par_iter()
-        .with_min_len(256)
-        .map(|i| {
-            let s: f64 = nl.row(i).map(|k| nl.w()[k]).sum();
-            if s > 0.0 {
-                1.0 / s
-            } else {
-                f64::INFINITY
-            }
-        })
-        .collect()
+    let mut v = Vec::new();
+    number_density_volumes_into(nl, &mut v);
+    v
+}
+
+/// [`number_density_volumes`] into `out` (resized to the list; its memory reused), from the
+/// sums the list's measure took ([`NeighborList::w_sums`]): no pass over the pairs.
+pub fn number_density_volumes_into<const D: usize>(nl: &NeighborList<D>, out: &mut Vec<f64>) {
+    out.clear();
+    out.extend(
+        nl.w_sums()
+            .iter()
+            .map(|&s| if s > 0.0 { 1.0 / s } else { f64::INFINITY }),
+    );
 }
 
 /// `Σ_{j≠i} w_h(r_ij)` on an infinite cell-centred lattice of spacing `dx`: the constant behind

@@ -70,6 +70,64 @@ pub fn in_pool<R: Send>(f: impl FnOnce() -> R + Send) -> R {
     }
 }
 
+/// Mutable slices cut together at a row boundary: a slice of per-entry values (a CSR's
+/// columns or values, cut at the row's first entry), [`PerRow`] (one value per row, cut at the
+/// row), or a pair of them (nest pairs for more).
+pub(crate) trait SplitParts: Sized + Send {
+    /// The parts before and from the boundary after `rows` rows, `entries` entries.
+    fn split_parts(self, rows: usize, entries: usize) -> (Self, Self);
+}
+
+impl<T: Send> SplitParts for &mut [T] {
+    fn split_parts(self, _rows: usize, entries: usize) -> (Self, Self) {
+        self.split_at_mut(entries)
+    }
+}
+
+/// A slice with one value per row, for [`row_pieces`].
+pub(crate) struct PerRow<'a, T>(pub &'a mut [T]);
+
+impl<T: Send> SplitParts for PerRow<'_, T> {
+    fn split_parts(self, rows: usize, _entries: usize) -> (Self, Self) {
+        let (a, b) = self.0.split_at_mut(rows);
+        (PerRow(a), PerRow(b))
+    }
+}
+
+impl<A: SplitParts, B: SplitParts> SplitParts for (A, B) {
+    fn split_parts(self, rows: usize, entries: usize) -> (Self, Self) {
+        let (a0, a1) = self.0.split_parts(rows, entries);
+        let (b0, b1) = self.1.split_parts(rows, entries);
+        ((a0, b0), (a1, b1))
+    }
+}
+
+/// The rows `0..n` as parallel pieces `(rows, parts)`, `parts` cut at the rows' first entries:
+/// `start(i)` is where row `i` begins in `parts`' per-entry slices (nondecreasing, `start(n)` their length, e.g.
+/// CSR offsets), and a piece's `parts` begin at `start(rows.start)`. Rows are halved while a
+/// piece holds more than `min_rows` and rayon asks for work, so the pieces depend on the
+/// threads: what is computed for a row must not (a reduction over the pieces sees them in row
+/// order). Allocates nothing — the fill loops of a moving step split their outputs with it.
+pub(crate) fn row_pieces<P: SplitParts>(
+    n: usize,
+    min_rows: usize,
+    start: impl Fn(usize) -> usize + Sync + Send,
+    parts: P,
+) -> impl rayon::iter::ParallelIterator<Item = (std::ops::Range<usize>, P)> {
+    use rayon::iter::ParallelIterator;
+    let first = start(0);
+    rayon::iter::split((0..n, first, parts), move |(rows, base, parts)| {
+        if rows.len() <= min_rows.max(1) {
+            return ((rows, base, parts), None);
+        }
+        let mid = rows.start + rows.len() / 2;
+        let at = start(mid);
+        let (a, b) = parts.split_parts(mid - rows.start, at - base);
+        ((rows.start..mid, base, a), Some((mid..rows.end, at, b)))
+    })
+    .map(|(rows, _, parts)| (rows, parts))
+}
+
 /// `Σ_k values[k] x[cols[k]]`, one row of a sparse product: four partial sums over the entries
 /// in turn (entry `k` into sum `k mod 4`), added as `(s0 + s1) + (s2 + s3)`, then the last
 /// `len mod 4` entries in order. Four independent chains instead of one: a 3D Poisson row

@@ -22,7 +22,7 @@ fn next_epoch() -> u64 {
 
 use crate::error::InputError;
 use crate::kernel::{Kernel, Weight};
-use crate::math::{is_finite, norm2};
+use crate::math::{is_finite, norm2, row_pieces, PerRow};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
@@ -221,6 +221,9 @@ pub struct NeighborList<const D: usize> {
     r2: Vec<f64>,
     w: Vec<f64>,
     wr2: Vec<f64>,
+    /// Per row: `Σ_j w_ij` over its pairs in order (the number density), summed by the
+    /// measure as it writes the row's weights.
+    w_sum: Vec<f64>,
     cand_offsets: Vec<usize>,
     cand_indices: Vec<u32>,
     /// Per candidate pair: 1 when within `h` at the last measure (pass 1 to pass 2).
@@ -241,19 +244,24 @@ pub struct NeighborList<const D: usize> {
 /// pairs, so that a check that the list belongs to these positions costs `O(N)`, not a pass
 /// over every pair ([`NeighborList::measured_at`]).
 pub fn positions_hash<const D: usize>(x: &[[f64; D]]) -> u64 {
+    // FNV-1a within fixed chunks of 4 096 positions, the chunk hashes weighted by powers of an
+    // odd constant by their index and added (wrapping): order-sensitive, the same for any
+    // thread count, and no buffer of chunk hashes (a moving step allocates nothing)
     const PRIME: u64 = 0x100000001b3;
+    const BASE: u64 = 0x9e3779b97f4a7c15;
     let fnv = |h: u64, v: u64| (h ^ v).wrapping_mul(PRIME);
-    let parts: Vec<u64> = x
+    let sum = x
         .par_chunks(4096)
-        .map(|c| {
-            c.iter()
+        .enumerate()
+        .map(|(c, ch)| {
+            let h = ch
+                .iter()
                 .flatten()
-                .fold(0xcbf29ce484222325, |h, v| fnv(h, v.to_bits()))
+                .fold(0xcbf29ce484222325, |h, v| fnv(h, v.to_bits()));
+            h.wrapping_mul(BASE.wrapping_pow(c as u32 + 1))
         })
-        .collect();
-    parts
-        .into_iter()
-        .fold(fnv(0xcbf29ce484222325, x.len() as u64), fnv)
+        .reduce(|| 0, u64::wrapping_add);
+    fnv(fnv(0xcbf29ce484222325, x.len() as u64), sum)
 }
 
 impl<const D: usize> NeighborList<D> {
@@ -269,6 +277,7 @@ impl<const D: usize> NeighborList<D> {
             r2: Vec::new(),
             w: Vec::new(),
             wr2: Vec::new(),
+            w_sum: Vec::new(),
             cand_offsets: vec![0],
             cand_indices: Vec::new(),
             cand_keep: Vec::new(),
@@ -345,6 +354,12 @@ impl<const D: usize> NeighborList<D> {
     /// Number of stored pairs (each unordered pair is stored twice).
     pub fn n_pairs(&self) -> usize {
         self.indices.len()
+    }
+    /// Per row, `Σ_j w_h(r_ij)` over its pairs (the number density; with pair factors, of the
+    /// scaled weights): summed in the measure's pass over the pairs, equal to summing
+    /// [`Self::w`] over [`Self::row`] in order.
+    pub fn w_sums(&self) -> &[f64] {
+        &self.w_sum
     }
     /// Row offsets: row `i` of the pair arrays is `offsets()[i]..offsets()[i + 1]`
     /// ([`row`](Self::row)).
@@ -459,6 +474,9 @@ impl<const D: usize> NeighborList<D> {
         for (k, f) in factors.iter().enumerate() {
             self.w[k] *= f;
             self.wr2[k] *= f;
+        }
+        for i in 0..self.len() {
+            self.w_sum[i] = self.w[self.row(i)].iter().sum();
         }
         self.generation += 1;
         Ok(())
@@ -615,87 +633,85 @@ impl<const D: usize> NeighborList<D> {
             d
         };
         // pass 1: which candidates are within h (a byte each, for pass 2) and the counts per
-        // row; pass 2 measures the kept pairs again (the same arithmetic: the same bits)
+        // row (into `offsets[i + 1]`, summed below); pass 2 measures the kept pairs again (the
+        // same arithmetic: the same bits). Both split their outputs by rows without allocating.
         let mut keep = std::mem::take(&mut self.cand_keep);
         keep.resize(ci.len(), 0);
+        let mut offsets = std::mem::take(&mut self.offsets);
+        offsets.resize(n + 1, 0);
+        offsets[0] = 0;
         const RCHUNK: usize = 512;
-        let rbounds: Vec<usize> = (0..=n.div_ceil(RCHUNK))
-            .map(|c| co[(c * RCHUNK).min(n)])
-            .collect();
-        let counts: Vec<Vec<usize>> = split_by(&mut keep, &rbounds)
-            .into_par_iter()
-            .enumerate()
-            .map(|(c, flags)| {
-                let base = co[(c * RCHUNK).min(n)];
-                let rows = c * RCHUNK..((c + 1) * RCHUNK).min(n);
-                let mut out = Vec::with_capacity(rows.len());
-                for i in rows {
-                    let (cands, fl) = (
-                        &ci[co[i]..co[i + 1]],
-                        &mut flags[co[i] - base..co[i + 1] - base],
-                    );
-                    let axes = near(i);
-                    out.push(if axes == [false; D] {
-                        flag_row(cands, fl, h2, |j| sub(i, j))
-                    } else {
-                        flag_row(cands, fl, h2, |j| part(i, j, &axes))
-                    });
-                }
-                out
-            })
-            .collect();
-        let counts: Vec<usize> = counts.into_iter().flatten().collect();
-        let mut offsets = Vec::with_capacity(n + 1);
-        offsets.push(0usize);
-        for c in &counts {
-            offsets.push(offsets.last().unwrap() + c);
+        row_pieces(
+            n,
+            RCHUNK,
+            |i| co[i],
+            (&mut keep[..], PerRow(&mut offsets[1..])),
+        )
+        .for_each(|(rows, (flags, PerRow(counts)))| {
+            let base = co[rows.start];
+            for (i, count) in rows.clone().zip(counts.iter_mut()) {
+                let (cands, fl) = (
+                    &ci[co[i]..co[i + 1]],
+                    &mut flags[co[i] - base..co[i + 1] - base],
+                );
+                let axes = near(i);
+                *count = if axes == [false; D] {
+                    flag_row(cands, fl, h2, |j| sub(i, j))
+                } else {
+                    flag_row(cands, fl, h2, |j| part(i, j, &axes))
+                };
+            }
+        });
+        for i in 0..n {
+            offsets[i + 1] += offsets[i];
         }
-        let m = *offsets.last().unwrap();
+        let m = offsets[n];
         self.indices.resize(m, 0);
         self.dx.resize(m, [0.0; D]);
         self.r2.resize(m, 0.0);
         self.w.resize(m, 0.0);
         self.wr2.resize(m, 0.0);
-        // pass 2: fill, chunk by chunk of rows (each chunk owns a contiguous output range)
+        self.w_sum.resize(n, 0.0);
+        // pass 2: fill, piece by piece of rows (each piece owns a contiguous output range),
+        // and sum each row's weights while they are in cache (the number density)
         const CHUNK: usize = 512;
-        let bounds: Vec<usize> = (0..=n.div_ceil(CHUNK))
-            .map(|c| offsets[(c * CHUNK).min(n)])
-            .collect();
         let kernel = self.kernel;
-        let idx_parts = split_by(&mut self.indices, &bounds);
-        let dx_parts = split_by(&mut self.dx, &bounds);
-        let r2_parts = split_by(&mut self.r2, &bounds);
-        let w_parts = split_by(&mut self.w, &bounds);
-        let wr2_parts = split_by(&mut self.wr2, &bounds);
-        let coincident = idx_parts
-            .into_par_iter()
-            .zip(dx_parts)
-            .zip(r2_parts)
-            .zip(w_parts)
-            .zip(wr2_parts)
-            .enumerate()
-            .map(|(c, ((((idx, dxo), r2o), wo), wr2o))| {
-                let mut k = 0;
-                let mut bad = None;
-                for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                    let k0 = k;
-                    let (cands, fl) = (&ci[co[i]..co[i + 1]], &keep[co[i]..co[i + 1]]);
-                    let (idx, dxo, r2o) = (&mut idx[k0..], &mut dxo[k0..], &mut r2o[k0..]);
-                    let axes = near(i);
-                    let (m, zero) = if axes == [false; D] {
-                        fill_row(cands, fl, idx, dxo, r2o, |j| sub(i, j))
-                    } else {
-                        fill_row(cands, fl, idx, dxo, r2o, |j| part(i, j, &axes))
-                    };
-                    if let (Some(j), None) = (zero, bad) {
-                        bad = Some((i, j));
-                    }
-                    k += m;
-                    kernel.w_and_wr2(&r2o[..m], &mut wo[k0..k], &mut wr2o[k0..k]);
+        let offs = &offsets;
+        let coincident = row_pieces(
+            n,
+            CHUNK,
+            |i| offs[i],
+            (
+                (&mut self.indices[..], &mut self.dx[..]),
+                (
+                    (&mut self.r2[..], &mut self.w[..]),
+                    (&mut self.wr2[..], PerRow(&mut self.w_sum[..])),
+                ),
+            ),
+        )
+        .map(|(rows, ((idx, dxo), ((r2o, wo), (wr2o, PerRow(wsum)))))| {
+            let mut k = 0;
+            let mut bad = None;
+            for (i, ws) in rows.zip(wsum.iter_mut()) {
+                let k0 = k;
+                let (cands, fl) = (&ci[co[i]..co[i + 1]], &keep[co[i]..co[i + 1]]);
+                let (idx, dxo, r2o) = (&mut idx[k0..], &mut dxo[k0..], &mut r2o[k0..]);
+                let axes = near(i);
+                let (m, zero) = if axes == [false; D] {
+                    fill_row(cands, fl, idx, dxo, r2o, |j| sub(i, j))
+                } else {
+                    fill_row(cands, fl, idx, dxo, r2o, |j| part(i, j, &axes))
+                };
+                if let (Some(j), None) = (zero, bad) {
+                    bad = Some((i, j));
                 }
-                bad
-            })
-            .reduce(|| None, |a, b| a.or(b));
+                k += m;
+                kernel.w_and_wr2(&r2o[..m], &mut wo[k0..k], &mut wr2o[k0..k]);
+                *ws = wo[k0..k].iter().sum();
+            }
+            bad
+        })
+        .reduce(|| None, |a, b| a.or(b));
         self.offsets = offsets;
         self.cand_keep = keep;
         if let Some((i, j)) = coincident {
