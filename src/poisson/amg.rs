@@ -135,17 +135,25 @@ impl CsrRef<'_> {
     }
     /// The diagonal (zero where a row stores none).
     pub fn diagonal(&self) -> Vec<f64> {
-        (0..self.rows())
-            .into_par_iter()
+        let mut d = Vec::new();
+        self.diagonal_into(&mut d);
+        d
+    }
+
+    /// [`Self::diagonal`] into `out` (its memory reused).
+    pub fn diagonal_into(&self, out: &mut Vec<f64>) {
+        out.resize(self.rows(), 0.0);
+        out.par_iter_mut()
             .with_min_len(MIN_LEN)
-            .map(|i| {
+            .enumerate()
+            .for_each(|(i, d)| {
                 let r = self.offsets[i]..self.offsets[i + 1];
-                r.clone()
+                *d = r
+                    .clone()
                     .find(|&k| self.cols[k] as usize == i)
                     .map(|k| self.values[k])
-                    .unwrap_or(0.0)
-            })
-            .collect()
+                    .unwrap_or(0.0);
+            });
     }
 }
 
@@ -681,10 +689,17 @@ fn jacobi_gershgorin(a: CsrRef<'_>, inv_diag: &[f64]) -> f64 {
 const KEEP_RHO: f64 = 1.95;
 
 fn inv_diagonal(a: CsrRef<'_>) -> Vec<f64> {
-    a.diagonal()
-        .into_iter()
-        .map(|d| if d > 0.0 { 1.0 / d } else { 0.0 })
-        .collect()
+    let mut d = Vec::new();
+    inv_diagonal_into(a, &mut d);
+    d
+}
+
+/// [`inv_diagonal`] into `out` (its memory reused).
+fn inv_diagonal_into(a: CsrRef<'_>, out: &mut Vec<f64>) {
+    a.diagonal_into(out);
+    for d in out.iter_mut() {
+        *d = if *d > 0.0 { 1.0 / *d } else { 0.0 };
+    }
 }
 
 /// Strong neighbours of every row with their (signed) entries `a_ij`.
@@ -1220,7 +1235,9 @@ impl Amg {
             self.stats.coarse_pinned = self.coarse.pinned();
             return;
         }
-        let inv_diag = inv_diagonal(a);
+        // the new inverse diagonal in the smoother's own vector, scaled in place below
+        let mut inv_diag = std::mem::take(&mut self.smoothers[0].s);
+        inv_diagonal_into(a, &mut inv_diag);
         let last = self.smoothers[0].rho;
         // a moved matrix keeps the last estimate, raised where needed to the smallest `ρ` for
         // which Gershgorin's bound `g ≥ ρ(D⁻¹A)` of the new matrix proves the smoother
@@ -1240,7 +1257,11 @@ impl Amg {
             self.stats.rho[0] = rho;
             rho
         };
-        self.smoothers[0] = Smoother::new(&inv_diag, self.params.smoother_weight, rho);
+        let w = self.params.smoother_weight / rho;
+        for d in inv_diag.iter_mut() {
+            *d *= w;
+        }
+        self.smoothers[0] = Smoother { s: inv_diag, rho };
     }
 
     /// Statistics: sizes, complexity, setup time.

@@ -13,6 +13,7 @@
 
 use crate::diagnostics::alias;
 use crate::error::SolveError;
+use crate::math::{row_pieces, PerRow};
 use crate::neighbors::{split_by, NeighborList};
 use crate::particles::Role;
 use rayon::prelude::*;
@@ -67,9 +68,11 @@ impl Clone for ChunkScratch {
     }
 }
 
-/// What the matrix values were computed from.
-#[derive(Clone, Debug, PartialEq)]
+/// What the matrix values were computed from (kept, with its vectors, when forgotten: `valid`
+/// false).
+#[derive(Clone, Debug, Default, PartialEq)]
 struct ValuesKey {
+    valid: bool,
     pattern_id: u64,
     generation: u64,
     vol: Vec<f64>,
@@ -78,20 +81,8 @@ struct ValuesKey {
     sigma: Vec<f64>,
 }
 
-/// Rows per parallel chunk of the value fills.
+/// Rows per parallel piece of the value fills (at least).
 const ROW_CHUNK: usize = 256;
-
-/// `values` (one per entry of the rows `offsets`) split at every `ROW_CHUNK`-th row: chunk
-/// `c` holds the entries of rows `c·ROW_CHUNK ..`, for a parallel fill by rows.
-fn row_chunks<'a, T>(offsets: &[usize], values: &'a mut [T]) -> Vec<&'a mut [T]> {
-    let Some(n) = offsets.len().checked_sub(1) else {
-        return Vec::new();
-    };
-    let bounds: Vec<usize> = (0..=n.div_ceil(ROW_CHUNK))
-        .map(|c| offsets[(c * ROW_CHUNK).min(n)])
-        .collect();
-    split_by(values, &bounds)
-}
 
 /// `dst` resized to `bounds`' last entry and filled with `parts` (part `c` into
 /// `bounds[c]..bounds[c + 1]`), the parts copied in parallel (a serial copy of a pattern's
@@ -305,14 +296,12 @@ impl Assembly {
             self.pattern_id += 1;
             self.derived_from = Some(k.pattern_id);
         }
-        self.values_key = None;
+        self.forget_values();
         self.values_reused = false;
         self.values.resize(k.values.len(), 0.0);
         let two_d = 2.0 * D as f64;
         let corrected = sigma.iter().any(|&s| s != 1.0);
         let n = self.n();
-        const CHUNK: usize = ROW_CHUNK;
-        let parts = row_chunks(&self.offsets, &mut self.values);
         let (offsets, cols, diag, particle, unknown) = (
             &self.offsets,
             &self.cols,
@@ -320,13 +309,14 @@ impl Assembly {
             &self.particle,
             &self.unknown,
         );
-        parts.into_par_iter().enumerate().for_each(|(ch, vals)| {
-            let base = offsets[(ch * CHUNK).min(n)];
+        let parts = row_pieces(n, ROW_CHUNK, |u| offsets[u], &mut self.values[..]);
+        parts.for_each(|(rows, vals)| {
+            let base = offsets[rows.start];
             let kv = &k.values[base..base + vals.len()];
             for (v, kv) in vals.iter_mut().zip(kv) {
                 *v = c * kv;
             }
-            for u in ch * CHUNK..((ch + 1) * CHUNK).min(n) {
+            for u in rows {
                 let p = particle[u] as usize;
                 vals[diag[u] - base] += mass * vol[p];
                 if !corrected {
@@ -474,14 +464,39 @@ impl Assembly {
         self.pattern_id += 1;
         self.derived_from = None;
         self.values_reused = false;
-        self.values_key = self.reuse_values.then(|| ValuesKey {
-            pattern_id: self.pattern_id,
-            generation: nl.generation(),
-            vol: vol.to_vec(),
-            mass: mass.to_bits(),
-            c: c.to_bits(),
-            sigma: sigma.map(|s| s.to_vec()).unwrap_or_default(),
-        });
+        self.forget_values();
+        if self.reuse_values {
+            self.remember_values(nl.generation(), vol, mass, c, sigma);
+        }
+    }
+
+    /// Marks the values as computed from these inputs and the current pattern (the key's
+    /// vectors overwritten in place).
+    fn remember_values(
+        &mut self,
+        generation: u64,
+        vol: &[f64],
+        mass: f64,
+        c: f64,
+        sigma: Option<&[f64]>,
+    ) {
+        let k = self.values_key.get_or_insert_with(ValuesKey::default);
+        k.valid = true;
+        k.pattern_id = self.pattern_id;
+        k.generation = generation;
+        k.vol.clear();
+        k.vol.extend_from_slice(vol);
+        k.mass = mass.to_bits();
+        k.c = c.to_bits();
+        k.sigma.clear();
+        k.sigma.extend_from_slice(sigma.unwrap_or_default());
+    }
+
+    /// Marks the values as computed from nothing known (the key's memory kept).
+    fn forget_values(&mut self) {
+        if let Some(k) = &mut self.values_key {
+            k.valid = false;
+        }
     }
 
     /// [`Self::update_with_values`] when every particle is a fluid unknown (numbered in
@@ -513,14 +528,14 @@ impl Assembly {
         let two_d = 2.0 * D as f64;
         let offsets = &self.offsets;
         let (idx, wr2) = (nl.indices(), nl.wr2());
-        row_chunks(offsets, &mut self.cols)
-            .into_par_iter()
-            .zip(row_chunks(offsets, &mut self.values))
-            .zip(self.diag.par_chunks_mut(ROW_CHUNK))
-            .enumerate()
-            .all(|(ch, ((cols, vals), diag))| {
-                let base = offsets[ch * ROW_CHUNK];
-                for (du, u) in (ch * ROW_CHUNK..((ch + 1) * ROW_CHUNK).min(n)).enumerate() {
+        let parts = (
+            (&mut self.cols[..], &mut self.values[..]),
+            PerRow(&mut self.diag[..]),
+        );
+        row_pieces(n, ROW_CHUNK, |u| offsets[u], parts).all(
+            |(rows, ((cols, vals), PerRow(diag)))| {
+                let base = offsets[rows.start];
+                for (du, u) in rows.enumerate() {
                     let row = nl.row(u);
                     let js = &idx[row.clone()];
                     let at = js.partition_point(|&j| (j as usize) < u);
@@ -541,7 +556,8 @@ impl Assembly {
                     diag[du] = offsets[u] + at;
                 }
                 true
-            })
+            },
+        )
     }
 
     /// Fills the values of `K` for the current pair data (pattern must be up to date).
@@ -585,6 +601,7 @@ impl Assembly {
         sigma: Option<&[f64]>,
     ) -> Result<(), SolveError> {
         let key = ValuesKey {
+            valid: true,
             pattern_id: self.pattern_id,
             generation: nl.generation(),
             vol: Vec::new(),
@@ -594,7 +611,8 @@ impl Assembly {
         };
         if self.reuse_values {
             if let Some(k) = &self.values_key {
-                if k.pattern_id == key.pattern_id
+                if k.valid
+                    && k.pattern_id == key.pattern_id
                     && k.generation == key.generation
                     && k.mass == key.mass
                     && k.c == key.c
@@ -607,12 +625,10 @@ impl Assembly {
             }
         }
         self.values_reused = false;
-        self.values_key = None;
+        self.forget_values();
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
-        const CHUNK: usize = ROW_CHUNK;
-        let parts = row_chunks(&self.offsets, &mut self.values);
         let (offsets, cols, diag, particle, unknown) = (
             &self.offsets,
             &self.cols,
@@ -620,10 +636,11 @@ impl Assembly {
             &self.particle,
             &self.unknown,
         );
-        parts.into_par_iter().enumerate().for_each(|(ch, vals)| {
-            let base = offsets[(ch * CHUNK).min(n)];
+        let parts = row_pieces(n, ROW_CHUNK, |u| offsets[u], &mut self.values[..]);
+        parts.for_each(|(rows, vals)| {
+            let base = offsets[rows.start];
             vals.fill(0.0);
-            for u in ch * CHUNK..((ch + 1) * CHUNK).min(n) {
+            for u in rows {
                 let p = particle[u] as usize;
                 let row = &cols[offsets[u]..offsets[u + 1]];
                 let mut dsum = 0.0;
@@ -660,11 +677,7 @@ impl Assembly {
             ));
         }
         if self.reuse_values {
-            self.values_key = Some(ValuesKey {
-                vol: vol.to_vec(),
-                sigma: sigma.map(|s| s.to_vec()).unwrap_or_default(),
-                ..key
-            });
+            self.remember_values(key.generation, vol, mass, c, sigma);
         }
         Ok(())
     }

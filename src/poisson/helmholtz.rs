@@ -10,7 +10,7 @@
 use super::amg::{AmgCache, AmgSetup};
 use super::assembly::Assembly;
 use super::direct::Direct;
-use super::iterative::{pcg, pcg_multi_in, pcg_with, CgInfo, CgWork};
+use super::iterative::{pcg_in, pcg_multi_in, pcg_with_in, CgInfo, CgWork};
 use super::{SolveInfo, SolveParams, SolverKind};
 use crate::diagnostics::alias;
 use crate::error::SolveError;
@@ -392,7 +392,7 @@ impl HelmholtzSolver {
                     }
                     let b = &self.b[d * m..(d + 1) * m];
                     let ri = if kind == SolverKind::Amg {
-                        pcg_with(
+                        pcg_with_in(
                             a,
                             b,
                             x,
@@ -400,9 +400,18 @@ impl HelmholtzSolver {
                             params.abs_tol,
                             params.max_iters,
                             &mut self.amg.preconditioner(a),
+                            &mut self.cg_work,
                         )?
                     } else {
-                        pcg(a, b, x, viscous_tol, params.abs_tol, params.max_iters)?
+                        pcg_in(
+                            a,
+                            b,
+                            x,
+                            viscous_tol,
+                            params.abs_tol,
+                            params.max_iters,
+                            &mut self.cg_work,
+                        )?
                     };
                     first.get_or_insert(ri);
                     info.iters += ri.iters;

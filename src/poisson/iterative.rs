@@ -41,6 +41,16 @@ pub struct CgInfo {
     pub final_residual: f64,
 }
 
+impl CgWork {
+    /// The four single-column vectors sized to `n` (values left as they were: every run
+    /// writes each before it reads it).
+    fn size(&mut self, n: usize) {
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.resize(n, 0.0);
+        }
+    }
+}
+
 /// A symmetric positive (semi-)definite approximation `B ≈ K⁻¹` applied as `z = B r`.
 pub trait Preconditioner {
     /// `z = B r` (`z` need not be initialised).
@@ -107,8 +117,13 @@ fn sum_squares(v: &[f64]) -> f64 {
 }
 
 pub(crate) fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
-    let mut kx = vec![0.0; a.n()];
-    a.spmv(x, &mut kx);
+    true_residual_in(a, b, x, &mut Vec::new())
+}
+
+/// [`true_residual`] with `K x` in `kx` (its memory reused).
+pub(crate) fn true_residual_in(a: &Assembly, b: &[f64], x: &[f64], kx: &mut Vec<f64>) -> f64 {
+    kx.resize(a.n(), 0.0);
+    a.spmv(x, kx);
     kx.par_iter()
         .zip(b.par_iter())
         .with_min_len(MIN_LEN)
@@ -120,6 +135,7 @@ pub(crate) fn true_residual(a: &Assembly, b: &[f64], x: &[f64]) -> f64 {
 
 /// The report of a converged CG run: the true residual `‖b − Kx‖` (not the recursive one)
 /// beside the recursive initial and final residuals.
+#[allow(clippy::too_many_arguments)]
 fn converged(
     a: &Assembly,
     b: &[f64],
@@ -128,8 +144,9 @@ fn converged(
     iters: usize,
     r0: f64,
     rnorm: f64,
+    scratch: &mut Vec<f64>,
 ) -> CgInfo {
-    let true_r = true_residual(a, b, x);
+    let true_r = true_residual_in(a, b, x, scratch);
     CgInfo {
         iters,
         abs_residual: true_r,
@@ -188,8 +205,10 @@ pub fn pcg_multi<const K: usize>(
     pcg_multi_in(&mut work, a, b, x, rel_tol, abs_tol, max_iters)
 }
 
-/// The vectors of [`pcg_multi`], kept between solves so that a solve every step allocates
-/// (and the system clears) no new memory.
+/// The vectors of a CG run ([`pcg_in`], [`pcg_with_in`], [`pcg_multi_in`]: residual,
+/// preconditioned residual, search direction, `K p`, the inverse diagonal of the fused Jacobi
+/// loop), kept by a solver between its solves so that a solve every step allocates (and the
+/// system clears) no new memory. Their contents between runs mean nothing.
 #[derive(Clone, Debug, Default)]
 pub struct CgWork {
     inv_diag: Vec<f64>,
@@ -388,6 +407,21 @@ pub fn pcg_with<M: Preconditioner + ?Sized>(
     pcg_with_null(a, b, x, rel_tol, abs_tol, max_iters, m, &[])
 }
 
+/// [`pcg_with`] on the vectors of `work` (no allocation once they have grown to `K`'s size).
+#[allow(clippy::too_many_arguments)]
+pub fn pcg_with_in<M: Preconditioner + ?Sized>(
+    a: &Assembly,
+    b: &[f64],
+    x: &mut [f64],
+    rel_tol: f64,
+    abs_tol: f64,
+    max_iters: usize,
+    m: &mut M,
+    work: &mut CgWork,
+) -> Result<CgInfo, SolveError> {
+    pcg_with_null_in(a, b, x, rel_tol, abs_tol, max_iters, m, &[], work)
+}
+
 /// Removes the plain mean of `v` over each set of unknowns in `null` (the constant null vector
 /// of a floating component); returns `|v|²`.
 fn project_null(v: &mut [f64], null: &[&[u32]]) -> f64 {
@@ -420,44 +454,59 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
     m: &mut M,
     null: &[&[u32]],
 ) -> Result<CgInfo, SolveError> {
-    let n = a.n();
+    let mut work = CgWork::default();
+    pcg_with_null_in(a, b, x, rel_tol, abs_tol, max_iters, m, null, &mut work)
+}
+
+/// [`pcg_with_null`] on the vectors of `work` (no allocation once they have grown to `K`'s
+/// size).
+#[allow(clippy::too_many_arguments)]
+pub fn pcg_with_null_in<M: Preconditioner + ?Sized>(
+    a: &Assembly,
+    b: &[f64],
+    x: &mut [f64],
+    rel_tol: f64,
+    abs_tol: f64,
+    max_iters: usize,
+    m: &mut M,
+    null: &[&[u32]],
+    work: &mut CgWork,
+) -> Result<CgInfo, SolveError> {
     let bnorm = sum_squares(b).sqrt();
     if bnorm == 0.0 {
         x.iter_mut().for_each(|v| *v = 0.0);
         return Ok(CgInfo::default());
     }
     let tol = abs_tol.max(rel_tol * bnorm);
-    let mut r = vec![0.0; n];
-    a.spmv(x, &mut r);
+    work.size(a.n());
+    let CgWork { r, z, p, q, .. } = work;
+    a.spmv(x, r);
     r.par_iter_mut()
         .zip(b.par_iter())
         .with_min_len(MIN_LEN)
         .for_each(|(ri, bi)| *ri = bi - *ri);
     let mut rnorm = if null.is_empty() {
-        sum_squares(&r).sqrt()
+        sum_squares(r).sqrt()
     } else {
-        project_null(&mut r, null).sqrt()
+        project_null(r, null).sqrt()
     };
     let r0 = rnorm;
-    let mut z = vec![0.0; n];
-    let mut p = vec![0.0; n];
-    let mut q = vec![0.0; n];
     let mut rz = 0.0;
     let mut iters = 0;
     while rnorm > tol {
         if iters >= max_iters {
-            let true_r = true_residual(a, b, x);
+            let true_r = true_residual_in(a, b, x, q);
             return Err(SolveError::NoConvergence {
                 iters,
                 abs_residual: true_r,
                 rel_residual: true_r / bnorm,
             });
         }
-        m.apply(&r, &mut z);
+        m.apply(r, z);
         if !null.is_empty() {
-            project_null(&mut z, null);
+            project_null(z, null);
         }
-        let rz_new = dot(&r, &z);
+        let rz_new = dot(r, z);
         if rz_new.is_nan() || rz_new <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "preconditioned conjugate gradients: r·Br = {rz_new:e} ≤ 0 at iteration {iters} (preconditioner not positive definite)"
@@ -465,11 +514,16 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
         }
         let beta = if iters == 0 { 0.0 } else { rz_new / rz };
         rz = rz_new;
-        p.par_iter_mut()
-            .zip(z.par_iter())
-            .with_min_len(MIN_LEN)
-            .for_each(|(pi, zi)| *pi = zi + beta * *pi);
-        let pq = matvec_dot(a, &p, &mut q);
+        if iters == 0 {
+            // the kept vector holds the last run's direction (or anything): not read
+            p.copy_from_slice(z);
+        } else {
+            p.par_iter_mut()
+                .zip(z.par_iter())
+                .with_min_len(MIN_LEN)
+                .for_each(|(pi, zi)| *pi = zi + beta * *pi);
+        }
+        let pq = matvec_dot(a, p, q);
         if pq.is_nan() || pq <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "conjugate gradients: p·Kp = {pq:e} ≤ 0 at iteration {iters} (matrix not positive definite on the search direction)"
@@ -491,7 +545,7 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
         rnorm = if null.is_empty() {
             rr.sqrt()
         } else {
-            project_null(&mut r, null).sqrt()
+            project_null(r, null).sqrt()
         };
         iters += 1;
         if !rnorm.is_finite() {
@@ -500,7 +554,7 @@ pub fn pcg_with_null<M: Preconditioner + ?Sized>(
             )));
         }
     }
-    Ok(converged(a, b, x, bnorm, iters, r0, rnorm))
+    Ok(converged(a, b, x, bnorm, iters, r0, rnorm, q))
 }
 
 /// Jacobi-preconditioned CG from the initial guess in `x`.
@@ -512,31 +566,52 @@ pub fn pcg(
     abs_tol: f64,
     max_iters: usize,
 ) -> Result<CgInfo, SolveError> {
-    let n = a.n();
-    let inv_diag = inv_diagonal(a);
+    pcg_in(a, b, x, rel_tol, abs_tol, max_iters, &mut CgWork::default())
+}
+
+/// [`pcg`] on the vectors of `work` (no allocation once they have grown to `K`'s size).
+pub fn pcg_in(
+    a: &Assembly,
+    b: &[f64],
+    x: &mut [f64],
+    rel_tol: f64,
+    abs_tol: f64,
+    max_iters: usize,
+    work: &mut CgWork,
+) -> Result<CgInfo, SolveError> {
+    inv_diagonal_into(a, &mut work.inv_diag);
     let bnorm = sum_squares(b).sqrt();
     if bnorm == 0.0 {
         x.iter_mut().for_each(|v| *v = 0.0);
         return Ok(CgInfo::default());
     }
     let tol = abs_tol.max(rel_tol * bnorm);
-    let mut r = vec![0.0; n];
-    a.spmv(x, &mut r);
+    work.size(a.n());
+    let CgWork {
+        r,
+        z,
+        p,
+        q,
+        inv_diag,
+        ..
+    } = work;
+    a.spmv(x, r);
     r.par_iter_mut()
         .zip(b.par_iter())
         .with_min_len(MIN_LEN)
         .for_each(|(ri, bi)| *ri = bi - *ri);
-    let mut z: Vec<f64> = r.iter().zip(&inv_diag).map(|(r, m)| r * m).collect();
-    let mut p = z.clone();
-    let mut q = vec![0.0; n];
-    let mut rz = dot(&r, &z);
-    let mut rnorm = sum_squares(&r).sqrt();
+    for ((zi, ri), mi) in z.iter_mut().zip(r.iter()).zip(inv_diag.iter()) {
+        *zi = ri * mi;
+    }
+    p.copy_from_slice(z);
+    let mut rz = dot(r, z);
+    let mut rnorm = sum_squares(r).sqrt();
     let r0 = rnorm;
     let mut iters = 0;
     while rnorm > tol {
         if iters >= max_iters {
             // report the true residual ‖b − K x‖, as documented, not the recursive one
-            let true_r = true_residual(a, b, x);
+            let true_r = true_residual_in(a, b, x, q);
             return Err(SolveError::NoConvergence {
                 iters,
                 abs_residual: true_r,
@@ -544,7 +619,7 @@ pub fn pcg(
             });
         }
         // q = K p and p·q in one pass
-        let pq = matvec_dot(a, &p, &mut q);
+        let pq = matvec_dot(a, p, q);
         if pq.is_nan() || pq <= 0.0 {
             return Err(SolveError::Backend(format!(
                 "conjugate gradients: p·Kp = {pq:e} ≤ 0 at iteration {iters} (matrix not positive definite on the search direction)"
@@ -580,5 +655,5 @@ pub fn pcg(
             )));
         }
     }
-    Ok(converged(a, b, x, bnorm, iters, r0, rnorm))
+    Ok(converged(a, b, x, bnorm, iters, r0, rnorm, q))
 }

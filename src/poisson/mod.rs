@@ -341,6 +341,11 @@ pub struct PoissonSolver {
     /// Set by [`Self::assume_moving`]: the Cholesky ordering is a nested dissection of the
     /// particles' positions ([`direct::nested_dissection`]) instead of AMD.
     moving: bool,
+    /// The CG vectors, kept between solves.
+    cg: iterative::CgWork,
+    /// The floating components and their member unknowns, kept between solves.
+    floating: Vec<usize>,
+    members: Vec<Vec<u32>>,
 }
 
 impl PoissonSolver {
@@ -400,7 +405,11 @@ impl PoissonSolver {
     ) -> Result<(), SolveError> {
         self.ahead = None;
         if self.external.is_none() && self.kind_for::<D>(a.n(), params) == SolverKind::Cholesky {
-            let (floating, members) = floating_members(a, components);
+            let (mut floating, mut members) = (
+                std::mem::take(&mut self.floating),
+                std::mem::take(&mut self.members),
+            );
+            floating_members(a, components, &mut floating, &mut members);
             let pinned = pinned_unknowns(&members, &floating);
             let r = self
                 .direct
@@ -443,12 +452,15 @@ impl PoissonSolver {
         // Fixed particles keep AMD (one analysis per run, and the same bits as before).
         let xs = nl.search_positions();
         if self.moving && pattern_rebuilt && xs.len() == role.len() {
-            let coords: Vec<f64> = self
-                .assembly
-                .particle
-                .iter()
-                .flat_map(|&p| xs[p as usize])
-                .collect();
+            // (into the last step's vector: a moving step allocates nothing)
+            let mut coords = self
+                .direct
+                .coordinates
+                .take()
+                .map(|(c, _)| c)
+                .unwrap_or_default();
+            coords.clear();
+            coords.extend(self.assembly.particle.iter().flat_map(|&p| xs[p as usize]));
             self.direct.coordinates = Some((coords, D));
         }
         Ok(pattern_rebuilt)
@@ -555,7 +567,11 @@ impl PoissonSolver {
             }
         }
         // floating components: members (as unknowns), right side projected to zero sum
-        let (floating, members) = floating_members(a, components);
+        let (mut floating, mut members) = (
+            std::mem::take(&mut self.floating),
+            std::mem::take(&mut self.members),
+        );
+        floating_members(a, components, &mut floating, &mut members);
         info.floating = floating.len();
         let global_null = self
             .external
@@ -665,9 +681,19 @@ impl PoissonSolver {
                             info.amg_setup_seconds = h.stats().setup_seconds;
                         }
                         let t = Instant::now();
-                        let null: Vec<&[u32]> =
-                            floating.iter().map(|&c| members[c].as_slice()).collect();
-                        let r = iterative::pcg_with_null(
+                        // the null sets on the stack for up to four floating components
+                        let mut few: [&[u32]; 4] = [&[]; 4];
+                        let many: Vec<&[u32]>;
+                        let null: &[&[u32]] = if floating.len() <= few.len() {
+                            for (slot, &c) in few.iter_mut().zip(&floating) {
+                                *slot = &members[c];
+                            }
+                            &few[..floating.len()]
+                        } else {
+                            many = floating.iter().map(|&c| members[c].as_slice()).collect();
+                            &many
+                        };
+                        let r = iterative::pcg_with_null_in(
                             a,
                             &self.b,
                             &mut self.x,
@@ -675,20 +701,22 @@ impl PoissonSolver {
                             params.abs_tol,
                             params.max_iters,
                             &mut self.amg.preconditioner(a),
-                            &null,
+                            null,
+                            &mut self.cg,
                         )?;
                         info.solve_seconds = t.elapsed().as_secs_f64();
                         self.amg.record(&r, reuse);
                         r
                     } else {
                         let t = Instant::now();
-                        let r = iterative::pcg(
+                        let r = iterative::pcg_in(
                             a,
                             &self.b,
                             &mut self.x,
                             params.rel_tol,
                             params.abs_tol,
                             params.max_iters,
+                            &mut self.cg,
                         )?;
                         info.solve_seconds = t.elapsed().as_secs_f64();
                         r
@@ -727,15 +755,23 @@ impl PoissonSolver {
                 particle: a.particle[u] as usize,
             });
         }
+        (self.floating, self.members) = (floating, members);
         Ok(info)
     }
 }
 
 /// The floating components of `components` and, per component, its member unknowns (filled
 /// for the floating ones only).
-fn floating_members(a: &Assembly, components: &Components) -> (Vec<usize>, Vec<Vec<u32>>) {
-    let floating = components.floating();
-    let mut members: Vec<Vec<u32>> = vec![Vec::new(); components.len()];
+fn floating_members(
+    a: &Assembly,
+    components: &Components,
+    floating: &mut Vec<usize>,
+    members: &mut Vec<Vec<u32>>,
+) {
+    floating.clear();
+    floating.extend((0..components.len()).filter(|&c| !components.anchored[c]));
+    members.resize_with(components.len(), Vec::new);
+    members.iter_mut().for_each(Vec::clear);
     if !floating.is_empty() {
         for (u, &p) in a.particle.iter().enumerate() {
             let c = components.label[p as usize];
@@ -744,7 +780,6 @@ fn floating_members(a: &Assembly, components: &Components) -> (Vec<usize>, Vec<V
             }
         }
     }
-    (floating, members)
 }
 
 /// One unknown fixed to zero per floating component (its first member): the SPD system the
