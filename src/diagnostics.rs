@@ -103,6 +103,13 @@ impl Components {
     /// walls all carry a Neumann condition, 0 for the paper's Dirichlet problem) and reports every
     /// other floating component, and every isolated particle, with its particle ids.
     pub fn check(&self, allowed_floating: usize) -> Result<(), ConnectivityError> {
+        // the usual case, without allocating: few enough floating components, no isolated
+        // particle (only those make a floating component fail below)
+        if self.isolated.is_empty()
+            && self.anchored.iter().filter(|&&a| !a).count() <= allowed_floating
+        {
+            return Ok(());
+        }
         let mut floating = self.floating();
         // largest first; ties by lowest component id for determinism
         floating.sort_by(|&a, &b| self.size[b].cmp(&self.size[a]).then(a.cmp(&b)));
@@ -184,12 +191,48 @@ pub(crate) fn alias(role: &[Role], j: usize) -> Option<usize> {
 /// # Ok::<(), gpm::error::InputError>(())
 /// ```
 pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Components {
+    let mut out = Components::default();
+    connectivity_into(nl, role, &mut out, &mut ConnectivityScratch::default());
+    out
+}
+
+/// The working vectors of [`connectivity_into`], kept between calls.
+#[derive(Debug, Default)]
+pub struct ConnectivityScratch {
+    parent: Vec<std::sync::atomic::AtomicU32>,
+    flags: Vec<(bool, bool)>,
+    root_to_comp: Vec<u32>,
+}
+
+impl Clone for ConnectivityScratch {
+    /// Scratch, not state: a clone starts empty.
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+/// [`connectivity`] into `out`, its vectors and those of `scratch` reused (a moving step's
+/// check allocates nothing once they have grown).
+pub fn connectivity_into<const D: usize>(
+    nl: &NeighborList<D>,
+    role: &[Role],
+    out: &mut Components,
+    scratch: &mut ConnectivityScratch,
+) {
     use std::sync::atomic::{AtomicU32, Ordering};
     let n = nl.len();
     // a concurrent union-find (rows in parallel): a root is only ever linked under a smaller
     // root, so every component's root is its smallest index whatever the order of the unions
     // — the labels below are those of a sequential run
-    let parent: Vec<AtomicU32> = (0..n as u32).map(AtomicU32::new).collect();
+    let parent = &mut scratch.parent;
+    parent.truncate(n);
+    parent
+        .iter_mut()
+        .enumerate()
+        .for_each(|(i, p)| *p.get_mut() = i as u32);
+    let have = parent.len();
+    parent.extend((have..n).map(|i| AtomicU32::new(i as u32)));
+    let parent = &parent[..];
     fn find(p: &[AtomicU32], mut a: u32) -> u32 {
         loop {
             let pa = p[a as usize].load(Ordering::Acquire);
@@ -221,13 +264,17 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
         }
     }
     // (touches a Dirichlet particle, has a neighbour) per row
-    let flags: Vec<(bool, bool)> = (0..n)
-        .into_par_iter()
+    let flags = &mut scratch.flags;
+    flags.resize(n, (false, false));
+    flags
+        .par_iter_mut()
         .with_min_len(256)
-        .map(|i| {
+        .enumerate()
+        .for_each(|(i, flag)| {
             let (mut touches, mut has_nb) = (false, false);
             if !role[i].is_fluid() {
-                return (touches, has_nb);
+                *flag = (touches, has_nb);
+                return;
             }
             for k in nl.row(i) {
                 let j = nl.indices()[k] as usize;
@@ -240,29 +287,38 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
                         has_nb = true;
                         // each edge once (the list holds both directions, or a ghost of s)
                         if s > i {
-                            union(&parent, i as u32, s as u32);
+                            union(parent, i as u32, s as u32);
                         }
                     }
                     Some(_) => {}
                 }
             }
-            (touches, has_nb)
-        })
-        .collect();
-    let mut parent: Vec<u32> = parent.into_iter().map(AtomicU32::into_inner).collect();
-    let mut root = |mut a: usize| {
-        while parent[a] as usize != a {
-            let g = parent[parent[a] as usize];
-            parent[a] = g;
-            a = g as usize;
+            *flag = (touches, has_nb);
+        });
+    // sequential from here: the relaxed loads and stores see every union above
+    let root = |mut a: usize| loop {
+        let pa = parent[a].load(Ordering::Relaxed) as usize;
+        if pa == a {
+            return a;
         }
-        a
+        let g = parent[pa].load(Ordering::Relaxed);
+        parent[a].store(g, Ordering::Relaxed);
+        a = g as usize;
     };
-    let mut label = vec![u32::MAX; n];
-    let mut root_to_comp = vec![u32::MAX; n];
-    let mut anchored = Vec::new();
-    let mut size = Vec::new();
-    let mut isolated = Vec::new();
+    let Components {
+        label,
+        anchored,
+        size,
+        isolated,
+    } = out;
+    label.clear();
+    label.resize(n, u32::MAX);
+    let root_to_comp = &mut scratch.root_to_comp;
+    root_to_comp.clear();
+    root_to_comp.resize(n, u32::MAX);
+    anchored.clear();
+    size.clear();
+    isolated.clear();
     for i in 0..n {
         if !role[i].is_fluid() {
             continue;
@@ -283,12 +339,6 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
         if !has_nb {
             isolated.push(i);
         }
-    }
-    Components {
-        label,
-        anchored,
-        size,
-        isolated,
     }
 }
 

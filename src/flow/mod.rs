@@ -27,7 +27,6 @@ pub mod shifting;
 use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
-use crate::geometry::number_density_volumes;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
 use crate::particles::{Particles, Role};
 use crate::projection::{ProjectionParams, ProjectionStep, Scheme, StepReport};
@@ -279,6 +278,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     pressure_grad_due: bool,
     /// The explicit acceleration handed to the predictor (scratch).
     extra_accel: Vec<[f64; D]>,
+    /// The predicted velocity `u*` (scratch).
+    u_star: Vec<[f64; D]>,
     convection: Convection<D>,
     /// Kinetic energy after the last step (for `guard.energy_growth`).
     prev_energy: Option<f64>,
@@ -373,6 +374,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             old_pressure_grad: Vec::new(),
             pressure_grad_due: false,
             extra_accel: Vec::new(),
+            u_star: Vec::new(),
             convection: Convection::new(),
             prev_energy: None,
             pair_weights: Default::default(),
@@ -476,12 +478,13 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
 
     fn update_volumes(&mut self) -> Result<(), Error> {
         if self.plan.has(Stage::Volumes) {
-            let v = number_density_volumes(&self.nl);
-            for (i, r) in self.particles.role.iter().enumerate() {
+            // `number_density_volumes` from the sums the measure took, in place
+            let p = &mut self.particles;
+            for ((vol, r), &s) in p.vol.iter_mut().zip(&p.role).zip(self.nl.w_sums()) {
                 // a particle without neighbours (number density 0) keeps the volume it had: it
                 // carries its mass ballistically until it rejoins (`Disconnected::Float`)
-                if r.is_fluid() && v[i].is_finite() {
-                    self.particles.vol[i] = v[i];
+                if r.is_fluid() && s > 0.0 && (1.0 / s).is_finite() {
+                    *vol = 1.0 / s;
                 }
             }
             // ghosts copy their source's volume
@@ -870,7 +873,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         };
         let rhs_seconds = t_rhs.elapsed().as_secs_f64() + grad_seconds;
         let proj = &self.params.projection;
-        let mut u_star = Vec::new();
+        let mut u_star = std::mem::take(&mut self.u_star);
         let pred = self.projection.predict(
             &mut self.particles,
             &self.nl,
@@ -888,6 +891,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             dt,
             &u_star,
         )?;
+        self.u_star = u_star;
         pred.add_to(&mut report);
         report.timings.predictor += rhs_seconds;
         // ∇pⁿ⁺¹ at xⁿ⁺¹ for the next step's trapezoidal term: taken when that step starts

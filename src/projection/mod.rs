@@ -41,8 +41,8 @@ pub mod surface;
 use crate::boundary::{Boundary, VectorKind};
 use crate::consistent::{GradientKind, GradientOperator, LaplacianKind};
 use crate::diagnostics::{
-    connectivity, min_spacing, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio,
-    Components, ConnectivitySummary, Region,
+    min_spacing, norm_h01, norm_l2, norm_l2_vec, semi_regularity, stability_ratio, Components,
+    ConnectivitySummary, Region,
 };
 use crate::error::{Error, InputError};
 use crate::neighbors::NeighborList;
@@ -446,8 +446,9 @@ impl Prediction {
 }
 
 /// What connectivity and c0 were computed from.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 struct DiagnosticsKey {
+    valid: bool,
     epoch: u64,
     generation: u64,
     roles: u64,
@@ -722,7 +723,15 @@ pub struct ProjectionStep<const D: usize> {
     rhs: Vec<f64>,
     work: Vec<f64>,
     viscous_info: SolveInfo,
-    diagnostics_cache: Option<(DiagnosticsKey, Components, f64, f64)>,
+    /// The volumes and roles the overlapped Poisson setup reads (kept vectors).
+    ahead_inputs: (Vec<f64>, Vec<Role>),
+    /// What `comps`, `c0` and the spacing were last computed from (`valid` false: nothing).
+    diagnostics_key: DiagnosticsKey,
+    diagnostics_values: (f64, f64),
+    /// The components of the last connectivity check (taken out while the predictor's
+    /// overlapped Poisson setup reads them: the key is invalid then).
+    comps: Components,
+    connectivity_scratch: crate::diagnostics::ConnectivityScratch,
     /// With a [`HaloSync`] (a rank of a decomposed run): the source's divergence `D f` of the
     /// last projection at every particle, and the particles the last connectivity check
     /// found disconnected ([`Disconnected::Float`]), for the run's global diagnostics.
@@ -968,7 +977,7 @@ impl<const D: usize> ProjectionStep<D> {
         out: &mut Vec<[f64; D]>,
     ) -> Result<f64, Error> {
         let n = particles.len();
-        let (comps, _, _, _) = self.diagnostics(particles, nl, params)?;
+        self.diagnostics(particles, nl, params)?;
         let (role, vol) = (&particles.role, &particles.vol);
         let fluid = |i: usize| role[i] == Role::Fluid;
         let (sum_vol, count) = (0..n)
@@ -993,7 +1002,7 @@ impl<const D: usize> ProjectionStep<D> {
         chi.resize(n, 0.0);
         let solved = self
             .solver
-            .solve(nl, vol, role, &comps, &e, &mut chi, &params.solve);
+            .solve(nl, vol, role, &self.comps, &e, &mut chi, &params.solve);
         self.volume_e = e;
         if let Err(err) = solved {
             chi.clear();
@@ -1051,36 +1060,45 @@ impl<const D: usize> ProjectionStep<D> {
 
     /// Connectivity (checked against `params.allowed_floating`) and `c0`, reused while the pair
     /// data, roles and volumes are those of the last call (with `params.reuse_diagnostics`).
+    /// Connectivity (into `self.comps`), `c0`, the smallest spacing and the particles a
+    /// floating component may leave disconnected, recomputed only when the pair data, roles
+    /// or volumes changed (and `params.reuse_diagnostics`); the key's and the components'
+    /// vectors are overwritten in place.
     fn diagnostics(
         &mut self,
         particles: &Particles<D>,
         nl: &NeighborList<D>,
         params: &ProjectionParams<D>,
-    ) -> Result<(Components, f64, f64, usize), Error> {
-        let key = DiagnosticsKey {
-            epoch: nl.epoch(),
-            generation: nl.generation(),
-            roles: role_fingerprint(&particles.role),
-            vol: particles.vol.clone(),
-        };
-        let cached = match &self.diagnostics_cache {
-            Some((k, comps, c0, s)) if params.reuse_diagnostics && *k == key => {
-                Some((comps.clone(), *c0, *s))
-            }
-            _ => None,
-        };
-        let (comps, c0, spacing) = match cached {
-            Some(v) => v,
-            None => {
-                let comps = connectivity(nl, &particles.role);
-                let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
-                let spacing = min_spacing(nl, &particles.role, Region::Omega);
-                (comps, c0, spacing)
-            }
-        };
-        self.diagnostics_cache = Some((key, comps.clone(), c0, spacing));
+    ) -> Result<(f64, f64, usize), Error> {
+        let roles = role_fingerprint(&particles.role);
+        let k = &mut self.diagnostics_key;
+        let hit = params.reuse_diagnostics
+            && k.valid
+            && k.epoch == nl.epoch()
+            && k.generation == nl.generation()
+            && k.roles == roles
+            && k.vol == particles.vol;
+        if !hit {
+            k.valid = false;
+            crate::diagnostics::connectivity_into(
+                nl,
+                &particles.role,
+                &mut self.comps,
+                &mut self.connectivity_scratch,
+            );
+            let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+            let spacing = min_spacing(nl, &particles.role, Region::Omega);
+            self.diagnostics_values = (c0, spacing);
+            let k = &mut self.diagnostics_key;
+            (k.valid, k.epoch, k.generation, k.roles) = (true, nl.epoch(), nl.generation(), roles);
+            k.vol.clone_from(&particles.vol);
+        }
+        let (c0, spacing) = self.diagnostics_values;
         self.disconnected.clear();
-        let disconnected = match (comps.check(params.allowed_floating), params.disconnected) {
+        let disconnected = match (
+            self.comps.check(params.allowed_floating),
+            params.disconnected,
+        ) {
             (Ok(()), _) => 0,
             (Err(e), Disconnected::Fail) => return Err(e.into()),
             (Err(e), Disconnected::Float) => {
@@ -1090,7 +1108,7 @@ impl<const D: usize> ProjectionStep<D> {
                 e.offending.len()
             }
         };
-        Ok((comps, c0, spacing, disconnected))
+        Ok((c0, spacing, disconnected))
     }
 
     /// Predictor into `u_star` (resized to the particles; ghosts filled by the no-slip rule):
@@ -1187,9 +1205,15 @@ impl<const D: usize> ProjectionStep<D> {
         let mut ahead = None;
         if plan.viscous_implicit || self.overlap_solve_setup {
             // connectivity before any solve, the viscous one included
-            let (comps, ..) = self.diagnostics(particles, nl, params)?;
+            self.diagnostics(particles, nl, params)?;
             if self.overlap_solve_setup {
-                ahead = Some((comps, particles.vol.clone(), particles.role.clone()));
+                // the components, volumes and roles out of `self` while the predictor runs
+                // beside the setup (into kept vectors: no allocation)
+                let (mut vol, mut role) = std::mem::take(&mut self.ahead_inputs);
+                vol.clone_from(&particles.vol);
+                role.clone_from(&particles.role);
+                self.diagnostics_key.valid = false;
+                ahead = Some((std::mem::take(&mut self.comps), vol, role));
             }
         }
         let diagnostics_seconds = t.elapsed().as_secs_f64();
@@ -1240,6 +1264,12 @@ impl<const D: usize> ProjectionStep<D> {
             solver.assembly = k;
         }
         self.solver = solver;
+        if let Some((comps, vol, role)) = ahead {
+            // the components back, still those of the key (the predictor moves nothing)
+            self.comps = comps;
+            self.ahead_inputs = (vol, role);
+            self.diagnostics_key.valid = true;
+        }
         // a given pressure gradient serves one call, used or not (an early error)
         self.pressure_gradient_given.1 = false;
         // the predictor stage lasts until both are done
@@ -1487,8 +1517,8 @@ impl<const D: usize> ProjectionStep<D> {
 
         // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
         //    roles or volumes changed: they are functions of those alone)
-        let (comps, c0, spacing, disconnected) = self.diagnostics(particles, nl, params)?;
-        report.connectivity = comps.summary();
+        let (c0, spacing, disconnected) = self.diagnostics(particles, nl, params)?;
+        report.connectivity = self.comps.summary();
         report.disconnected = disconnected;
         report.c0 = c0;
         report.min_spacing = spacing;
@@ -1575,7 +1605,7 @@ impl<const D: usize> ProjectionStep<D> {
             nl,
             vol,
             role,
-            &comps,
+            &self.comps,
             &self.rhs,
             &mut self.phi,
             &params.solve,
