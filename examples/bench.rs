@@ -82,7 +82,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 7] = [
+const SWITCHES: [(&str, bool, &str); 8] = [
     (
         "skin",
         true,
@@ -112,6 +112,11 @@ const SWITCHES: [(&str, bool, &str); 7] = [
         "reuse_diagnostics",
         true,
         "connectivity and c0 kept while the pair set holds",
+    ),
+    (
+        "pattern_keep_pairs",
+        true,
+        "Poisson pattern (and its id) kept while the pairs within h hold",
     ),
     (
         "pattern_reuse",
@@ -204,6 +209,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("amg_reuse_aggregates") => projection.solve.amg_reuse_aggregates = false,
         Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,
+        Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
         Some(other) => bail!("unknown switch {other:?}"),
     }
     let moving = c.frame == "moving";

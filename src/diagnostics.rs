@@ -358,13 +358,14 @@ pub fn shepard_sums<const D: usize>(nl: &NeighborList<D>, vol: &[f64]) -> Vec<f6
 
 /// Smallest pair distance `min_{i∈region, j} r_ij` over the neighbour pairs of the rows in
 /// `region` (`∞` when they have no neighbour): the closest approach of two particles, or of a
-/// particle and its mirror image (twice its distance to a wall).
+/// particle and its mirror image (twice its distance to a wall). From the rows' smallest `r²`
+/// the measure took ([`NeighborList::r2_mins`]): no pass over the pairs.
 pub fn min_spacing<const D: usize>(nl: &NeighborList<D>, role: &[Role], region: Region) -> f64 {
     (0..nl.len())
         .into_par_iter()
         .with_min_len(256)
         .filter(|&i| region.contains(role[i]))
-        .map(|i| nl.row(i).map(|k| nl.r2()[k]).fold(f64::INFINITY, f64::min))
+        .map(|i| nl.r2_mins()[i])
         .reduce(|| f64::INFINITY, f64::min)
         .sqrt()
 }

@@ -224,6 +224,8 @@ pub struct NeighborList<const D: usize> {
     /// Per row: `Σ_j w_ij` over its pairs in order (the number density), summed by the
     /// measure as it writes the row's weights.
     w_sum: Vec<f64>,
+    /// Per row: the smallest `r²` of its pairs (`∞` for none), taken by the measure.
+    r2_min: Vec<f64>,
     cand_offsets: Vec<usize>,
     cand_indices: Vec<u32>,
     /// Per candidate pair: 1 when within `h` at the last measure (pass 1 to pass 2).
@@ -235,6 +237,11 @@ pub struct NeighborList<const D: usize> {
     epoch: u64,
     rebuilds: u64,
     generation: u64,
+    /// Changes when a measure keeps a different set of pairs than the one before it (and at
+    /// every search): [`Self::pair_set`].
+    pair_set: u64,
+    /// `cand_keep` holds the flags of the current candidates (false after a search).
+    keep_current: bool,
     /// [`positions_hash`] of the positions the pair data were last measured at (0: none).
     measured_at: u64,
 }
@@ -278,6 +285,7 @@ impl<const D: usize> NeighborList<D> {
             w: Vec::new(),
             wr2: Vec::new(),
             w_sum: Vec::new(),
+            r2_min: Vec::new(),
             cand_offsets: vec![0],
             cand_indices: Vec::new(),
             cand_keep: Vec::new(),
@@ -286,6 +294,8 @@ impl<const D: usize> NeighborList<D> {
             epoch: 0,
             rebuilds: 0,
             generation: 0,
+            pair_set: 0,
+            keep_current: false,
             measured_at: 0,
         })
     }
@@ -361,6 +371,11 @@ impl<const D: usize> NeighborList<D> {
     pub fn w_sums(&self) -> &[f64] {
         &self.w_sum
     }
+    /// Per row, the smallest `r²` of its pairs (`∞` for a row without pairs), taken by the
+    /// measure.
+    pub fn r2_mins(&self) -> &[f64] {
+        &self.r2_min
+    }
     /// Row offsets: row `i` of the pair arrays is `offsets()[i]..offsets()[i + 1]`
     /// ([`row`](Self::row)).
     #[inline(always)]
@@ -418,6 +433,14 @@ impl<const D: usize> NeighborList<D> {
     /// values, connectivity) can skip the work while it is unchanged.
     pub fn generation(&self) -> u64 {
         self.generation
+    }
+    /// Changes whenever the set of pairs within `h` changes — at a search, or when a measure
+    /// keeps other candidates than the measure before it — but not when the same pairs are
+    /// only re-measured at moved positions: a within-h matrix pattern keyed on it
+    /// (with [`Self::epoch`]) holds while the pair set does. Costs a byte compare per candidate
+    /// in the measure's first pass.
+    pub fn pair_set(&self) -> u64 {
+        self.pair_set
     }
     /// How many times the candidates were searched.
     pub fn rebuilds(&self) -> u64 {
@@ -598,6 +621,7 @@ impl<const D: usize> NeighborList<D> {
         self.x_ref.extend_from_slice(x);
         self.epoch = next_epoch();
         self.rebuilds += 1;
+        self.keep_current = false;
         Ok(())
     }
 
@@ -636,32 +660,44 @@ impl<const D: usize> NeighborList<D> {
         // row (into `offsets[i + 1]`, summed below); pass 2 measures the kept pairs again (the
         // same arithmetic: the same bits). Both split their outputs by rows without allocating.
         let mut keep = std::mem::take(&mut self.cand_keep);
+        // the last measure's flags, when they are of these candidates, tell whether the kept
+        // pairs change: each flag is compared as it is overwritten
+        let same_candidates = self.keep_current && keep.len() == ci.len();
         keep.resize(ci.len(), 0);
         let mut offsets = std::mem::take(&mut self.offsets);
         offsets.resize(n + 1, 0);
         offsets[0] = 0;
         const RCHUNK: usize = 512;
-        row_pieces(
+        let flipped = row_pieces(
             n,
             RCHUNK,
             |i| co[i],
             (&mut keep[..], PerRow(&mut offsets[1..])),
         )
-        .for_each(|(rows, (flags, PerRow(counts)))| {
+        .map(|(rows, (flags, PerRow(counts)))| {
             let base = co[rows.start];
+            let mut flipped = false;
             for (i, count) in rows.clone().zip(counts.iter_mut()) {
                 let (cands, fl) = (
                     &ci[co[i]..co[i + 1]],
                     &mut flags[co[i] - base..co[i + 1] - base],
                 );
                 let axes = near(i);
-                *count = if axes == [false; D] {
+                let (c, f) = if axes == [false; D] {
                     flag_row(cands, fl, h2, |j| sub(i, j))
                 } else {
                     flag_row(cands, fl, h2, |j| part(i, j, &axes))
                 };
+                *count = c;
+                flipped |= f;
             }
-        });
+            flipped
+        })
+        .reduce(|| false, |a, b| a || b);
+        if flipped || !same_candidates {
+            self.pair_set += 1;
+        }
+        self.keep_current = true;
         for i in 0..n {
             offsets[i + 1] += offsets[i];
         }
@@ -672,6 +708,7 @@ impl<const D: usize> NeighborList<D> {
         self.w.resize(m, 0.0);
         self.wr2.resize(m, 0.0);
         self.w_sum.resize(n, 0.0);
+        self.r2_min.resize(n, 0.0);
         // pass 2: fill, piece by piece of rows (each piece owns a contiguous output range),
         // and sum each row's weights while they are in cache (the number density)
         const CHUNK: usize = 512;
@@ -685,32 +722,38 @@ impl<const D: usize> NeighborList<D> {
                 (&mut self.indices[..], &mut self.dx[..]),
                 (
                     (&mut self.r2[..], &mut self.w[..]),
-                    (&mut self.wr2[..], PerRow(&mut self.w_sum[..])),
+                    (
+                        &mut self.wr2[..],
+                        (PerRow(&mut self.w_sum[..]), PerRow(&mut self.r2_min[..])),
+                    ),
                 ),
             ),
         )
-        .map(|(rows, ((idx, dxo), ((r2o, wo), (wr2o, PerRow(wsum)))))| {
-            let mut k = 0;
-            let mut bad = None;
-            for (i, ws) in rows.zip(wsum.iter_mut()) {
-                let k0 = k;
-                let (cands, fl) = (&ci[co[i]..co[i + 1]], &keep[co[i]..co[i + 1]]);
-                let (idx, dxo, r2o) = (&mut idx[k0..], &mut dxo[k0..], &mut r2o[k0..]);
-                let axes = near(i);
-                let (m, zero) = if axes == [false; D] {
-                    fill_row(cands, fl, idx, dxo, r2o, |j| sub(i, j))
-                } else {
-                    fill_row(cands, fl, idx, dxo, r2o, |j| part(i, j, &axes))
-                };
-                if let (Some(j), None) = (zero, bad) {
-                    bad = Some((i, j));
+        .map(
+            |(rows, ((idx, dxo), ((r2o, wo), (wr2o, (PerRow(wsum), PerRow(rmin))))))| {
+                let mut k = 0;
+                let mut bad = None;
+                for ((i, ws), rm) in rows.zip(wsum.iter_mut()).zip(rmin.iter_mut()) {
+                    let k0 = k;
+                    let (cands, fl) = (&ci[co[i]..co[i + 1]], &keep[co[i]..co[i + 1]]);
+                    let (idx, dxo, r2o) = (&mut idx[k0..], &mut dxo[k0..], &mut r2o[k0..]);
+                    let axes = near(i);
+                    let (m, zero) = if axes == [false; D] {
+                        fill_row(cands, fl, idx, dxo, r2o, |j| sub(i, j))
+                    } else {
+                        fill_row(cands, fl, idx, dxo, r2o, |j| part(i, j, &axes))
+                    };
+                    if let (Some(j), None) = (zero, bad) {
+                        bad = Some((i, j));
+                    }
+                    k += m;
+                    kernel.w_and_wr2(&r2o[..m], &mut wo[k0..k], &mut wr2o[k0..k]);
+                    *ws = wo[k0..k].iter().sum();
+                    *rm = r2o[..m].iter().copied().fold(f64::INFINITY, f64::min);
                 }
-                k += m;
-                kernel.w_and_wr2(&r2o[..m], &mut wo[k0..k], &mut wr2o[k0..k]);
-                *ws = wo[k0..k].iter().sum();
-            }
-            bad
-        })
+                bad
+            },
+        )
         .reduce(|| None, |a, b| a.or(b));
         self.offsets = offsets;
         self.cand_keep = keep;
@@ -727,21 +770,22 @@ impl<const D: usize> NeighborList<D> {
 }
 
 /// Pass 1 of the measure for one row: `flags[e]` = candidate `e` within `h` (`|d|² < h2`,
-/// `d = disp(j)`), and how many are.
+/// `d = disp(j)`); how many are, and whether any flag changed.
 #[inline(always)]
 fn flag_row<const D: usize>(
     cands: &[u32],
     flags: &mut [u8],
     h2: f64,
     disp: impl Fn(usize) -> [f64; D],
-) -> usize {
-    let mut count = 0;
+) -> (usize, bool) {
+    let (mut count, mut flipped) = (0, 0u8);
     for (&j, f) in cands.iter().zip(flags) {
-        let inside = norm2(&disp(j as usize)) < h2;
-        *f = inside as u8;
+        let inside = (norm2(&disp(j as usize)) < h2) as u8;
+        flipped |= *f ^ inside;
+        *f = inside;
         count += inside as usize;
     }
-    count
+    (count, flipped != 0)
 }
 
 /// Pass 2 of the measure for one row: the flagged candidates' indices, displacements and

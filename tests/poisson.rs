@@ -1125,3 +1125,78 @@ fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit
         }
     }
 }
+
+#[test]
+fn a_within_h_pattern_is_kept_while_the_pair_set_holds() {
+    // `keep_pairs`: particles moved without any pair crossing h keep the pattern and its id
+    // (the caches keyed on it hold) and get a fresh build's values bit for bit; a move that
+    // takes pairs across h builds a new pattern, again equal to a fresh build — on a periodic
+    // lattice (the in-place path) and in a box with wall images (the general path)
+    use gpm::neighbors::{NeighborConfig, Periodicity};
+    let periodic = {
+        let n = 20;
+        let dx = 1.0 / n as f64;
+        let mut p = gpm::particles::Particles::<2>::new();
+        for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
+            .into_iter()
+            .enumerate()
+        {
+            let a = 2.1 * k as f64;
+            let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
+            p.push(x, [0.0; 2], 0.0, dx * dx, Role::Fluid);
+        }
+        let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
+            .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
+        let nl = NeighborList::build(config, &p.x).unwrap();
+        (p, nl, dx)
+    };
+    let (walled, walled_nl, _) = walled_box(false);
+    for (name, mut p, mut nl, dx) in [
+        ("periodic", periodic.0, periodic.1, periodic.2),
+        ("walled", walled, walled_nl, 1.0 / 24.0),
+    ] {
+        let fresh = |p: &gpm::particles::Particles<2>, nl: &NeighborList<2>| {
+            let mut a = Assembly::default();
+            a.within_h = true;
+            a.update_poisson(nl, &p.vol, &p.role).unwrap();
+            a
+        };
+        let same = |a: &Assembly, b: &Assembly| {
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            a.offsets == b.offsets
+                && a.cols == b.cols
+                && a.diag == b.diag
+                && bits(&a.values) == bits(&b.values)
+        };
+        let mut kept = Assembly::default();
+        kept.within_h = true;
+        kept.keep_pairs = true;
+        assert!(kept.update_poisson(&nl, &p.vol, &p.role).unwrap());
+        let id = kept.pattern_id();
+        // a move far below any pair's distance to h: the same pairs, new distances
+        let set = nl.pair_set();
+        for (i, x) in p.x.iter_mut().enumerate() {
+            if p.role[i].is_fluid() {
+                x[0] += 1e-9 * dx * (i % 7) as f64;
+            }
+        }
+        nl.update(&p.x).unwrap();
+        assert_eq!(nl.pair_set(), set, "{name}: the pair set holds");
+        let rebuilt = kept.update_poisson(&nl, &p.vol, &p.role).unwrap();
+        assert!(!rebuilt, "{name}: pattern kept");
+        assert_eq!(kept.pattern_id(), id, "{name}: pattern id kept");
+        assert!(
+            same(&kept, &fresh(&p, &nl)),
+            "{name}: values of a fresh build"
+        );
+        // one fluid particle moved 0.4 dx: some of its pairs cross h
+        let i = p.role.iter().position(|r| r.is_fluid()).unwrap() + 5;
+        p.x[i][1] += 0.4 * dx;
+        nl.update(&p.x).unwrap();
+        assert_ne!(nl.pair_set(), set, "{name}: the pair set changed");
+        let rebuilt = kept.update_poisson(&nl, &p.vol, &p.role).unwrap();
+        assert!(rebuilt, "{name}: a new pattern");
+        assert_ne!(kept.pattern_id(), id, "{name}: a new pattern id");
+        assert!(same(&kept, &fresh(&p, &nl)), "{name}: after the change");
+    }
+}

@@ -53,6 +53,17 @@ pub struct Assembly {
     /// The per-chunk rows of [`Self::update_with_values`], kept between calls (a moving run
     /// builds its pattern every step: no allocation once they have grown).
     chunks: ChunkScratch,
+    /// `(epoch, generation, c0)` when the last build of a within-h pattern also summed
+    /// `Σ_j ω_j w_h(r_ij)` over every unknown's row in the same pass as its values: `c0`
+    /// (Definition 3.2) over `Ω` for those pair data ([`Self::c0_of`]).
+    c0: Option<(u64, u64, f64)>,
+    /// Keep a within-h pattern while the neighbour list's pair set is unchanged
+    /// ([`NeighborList::pair_set`]): only the values are refilled, and the pattern's id (which
+    /// the AMG and Cholesky caches key on) stays. Off: a new pattern at every measure. The
+    /// solvers set it from [`crate::poisson::SolveParams::pattern_keep_pairs`].
+    pub keep_pairs: bool,
+    /// `(epoch, generation)` of the pair data the values were last filled from.
+    filled: Option<(u64, u64)>,
 }
 
 /// Rows of one chunk: lengths, columns, values, diagonal positions.
@@ -132,6 +143,17 @@ impl Assembly {
     }
 
     /// Numbers the fluid particles as unknowns, in particle order.
+    /// The pair data's part of the pattern key: nothing without `within_h` (the candidates'
+    /// pattern holds until the next search), the pair set with `keep_pairs`, the generation
+    /// (every measure) otherwise.
+    fn pattern_generation<const D: usize>(&self, nl: &NeighborList<D>) -> u64 {
+        match (self.within_h && nl.config().skin > 0.0, self.keep_pairs) {
+            (false, _) => 0,
+            (true, true) => nl.pair_set(),
+            (true, false) => nl.generation(),
+        }
+    }
+
     fn number_unknowns(&mut self, role: &[Role]) {
         self.unknown.clear();
         self.unknown.resize(role.len(), u32::MAX);
@@ -167,8 +189,7 @@ impl Assembly {
     pub fn update_pattern<const D: usize>(&mut self, nl: &NeighborList<D>, role: &[Role]) -> bool {
         // with a skin, the pairs within h change with the pair data, not only with the list
         let within_h = self.within_h && nl.config().skin > 0.0;
-        let generation = if within_h { nl.generation() } else { 0 };
-        let key = (nl.epoch(), generation, role_hash(role));
+        let key = (nl.epoch(), self.pattern_generation(nl), role_hash(role));
         if self.key == Some(key) && self.unknown.len() == role.len() {
             return false;
         }
@@ -277,10 +298,12 @@ impl Assembly {
         c: f64,
         sigma: &[f64],
     ) -> Option<bool> {
-        let within_h = k.within_h && nl.config().skin > 0.0;
-        let generation = if within_h { nl.generation() } else { 0 };
-        let key = (nl.epoch(), generation, role_hash(role));
-        if k.key != Some(key) || k.unknown.len() != role.len() || k.values.len() != k.cols.len() {
+        let key = (nl.epoch(), k.pattern_generation(nl), role_hash(role));
+        if k.key != Some(key)
+            || k.filled != Some((nl.epoch(), nl.generation()))
+            || k.unknown.len() != role.len()
+            || k.values.len() != k.cols.len()
+        {
             return None;
         }
         let rebuilt = self.key != k.key
@@ -340,6 +363,7 @@ impl Assembly {
                 }
             }
         });
+        self.filled = Some((nl.epoch(), nl.generation()));
         Some(rebuilt)
     }
 
@@ -352,21 +376,37 @@ impl Assembly {
         c: f64,
         sigma: Option<&[f64]>,
     ) -> Result<bool, SolveError> {
+        self.c0 = None;
         let within_h = self.within_h && nl.config().skin > 0.0;
-        let key = (nl.epoch(), nl.generation(), role_hash(role));
+        let key = (nl.epoch(), self.pattern_generation(nl), role_hash(role));
         let current = self.key == Some(key) && self.unknown.len() == role.len();
+        let all_fluid = sigma.is_none() && self.particle.len() == role.len();
+        if within_h && current && all_fluid && self.cols.len() == nl.n_pairs() + role.len() {
+            // the pair set held (`keep_pairs`): the values refilled by the in-place path,
+            // which writes the same columns again, and the pattern kept with its id
+            if let Some(c0) = self.fill_all_fluid(nl, vol, mass, c) {
+                self.values_reused = false;
+                self.forget_values();
+                if self.reuse_values {
+                    self.remember_values(nl.generation(), vol, mass, c, sigma);
+                }
+                self.filled = Some((nl.epoch(), nl.generation()));
+                self.c0 = Some((nl.epoch(), nl.generation(), c0));
+                return Ok(false);
+            }
+        }
         if !within_h || current {
             let rebuilt = self.update_pattern(nl, role);
             self.fill(nl, vol, role, mass, c, sigma)?;
             return Ok(rebuilt);
         }
         self.number_unknowns(role);
-        if sigma.is_none()
-            && self.particle.len() == role.len()
-            && self.fill_all_fluid(nl, vol, mass, c)
-        {
-            self.set_pattern_built(key, nl, vol, mass, c, sigma);
-            return Ok(true);
+        if sigma.is_none() && self.particle.len() == role.len() {
+            if let Some(c0) = self.fill_all_fluid(nl, vol, mass, c) {
+                self.set_pattern_built(key, nl, vol, mass, c, sigma);
+                self.c0 = Some((nl.epoch(), nl.generation(), c0));
+                return Ok(true);
+            }
         }
         let two_d = 2.0 * D as f64;
         let unknown = &self.unknown;
@@ -374,10 +414,10 @@ impl Assembly {
         const CHUNK: usize = 256;
         let mut parts = std::mem::take(&mut self.chunks.0);
         parts.resize_with(particle.len().div_ceil(CHUNK), Default::default);
-        parts
+        let c0 = parts
             .par_iter_mut()
             .enumerate()
-            .for_each(|(chunk, (lens, cols, vals, diag))| {
+            .map(|(chunk, (lens, cols, vals, diag))| {
                 let start = chunk * CHUNK;
                 let end = (start + CHUNK).min(particle.len());
                 lens.clear();
@@ -385,12 +425,16 @@ impl Assembly {
                 cols.clear();
                 vals.clear();
                 let mut row: Vec<(u32, f64)> = Vec::with_capacity(64);
+                let mut c0 = 0.0f64;
                 for u in start..end {
                     let p = particle[u] as usize;
                     row.clear();
                     let mut dsum = 0.0;
+                    // c0's row sum Σ_j ω_j w_ij beside the values, in semi_regularity's order
+                    let mut vw = 0.0;
                     for k in nl.row(p) {
                         let j = nl.indices()[k] as usize;
+                        vw += vol[j] * nl.w()[k];
                         let a = c * two_d * vol[p] * vol[j] * nl.wr2()[k];
                         if a == 0.0 {
                             continue;
@@ -432,8 +476,11 @@ impl Assembly {
                         .expect("diagonal in pattern");
                     lens.push((cols.len() - first) as u32);
                     diag.push(pos as u32);
+                    c0 = c0.max(vw);
                 }
-            });
+                c0
+            })
+            .reduce(|| 0.0, f64::max);
         // offsets and diagonals row by row, the columns and values copied chunk by chunk in
         // parallel
         let bounds = self.set_rows(
@@ -447,6 +494,7 @@ impl Assembly {
         gather_parts(&mut self.values, &bounds, &vals);
         self.chunks.0 = parts;
         self.set_pattern_built(key, nl, vol, mass, c, sigma);
+        self.c0 = Some((nl.epoch(), nl.generation(), c0));
         Ok(true)
     }
 
@@ -464,6 +512,7 @@ impl Assembly {
         self.pattern_id += 1;
         self.derived_from = None;
         self.values_reused = false;
+        self.filled = Some((nl.epoch(), nl.generation()));
         self.forget_values();
         if self.reuse_values {
             self.remember_values(nl.generation(), vol, mass, c, sigma);
@@ -505,19 +554,20 @@ impl Assembly {
     /// matrix is known before it is filled (`offsets[u] = nl.offsets()[u] + u`) and the rows
     /// are written in place, in parallel, without the general path's per-chunk rows and their
     /// copy. The same entries, values and sums in the same order (the same bits). Returns
-    /// false, having written nothing that counts, when some pair's entry is exactly zero (the
-    /// general path leaves such entries out of the pattern).
+    /// `c0` (the largest row sum `Σ_j ω_j w_ij`, summed in the same pass), or `None`, having
+    /// written nothing that counts, when some pair's entry is exactly zero (the general path
+    /// leaves such entries out of the pattern).
     fn fill_all_fluid<const D: usize>(
         &mut self,
         nl: &NeighborList<D>,
         vol: &[f64],
         mass: f64,
         c: f64,
-    ) -> bool {
+    ) -> Option<f64> {
         let n = self.particle.len();
         let nlo = nl.offsets();
         if nlo.len() != n + 1 {
-            return false;
+            return None;
         }
         self.offsets.clear();
         self.offsets.extend((0..=n).map(|u| nlo[u] + u));
@@ -527,26 +577,30 @@ impl Assembly {
         self.diag.resize(n, 0);
         let two_d = 2.0 * D as f64;
         let offsets = &self.offsets;
-        let (idx, wr2) = (nl.indices(), nl.wr2());
+        let (idx, w, wr2) = (nl.indices(), nl.w(), nl.wr2());
         let parts = (
             (&mut self.cols[..], &mut self.values[..]),
             PerRow(&mut self.diag[..]),
         );
-        row_pieces(n, ROW_CHUNK, |u| offsets[u], parts).all(
-            |(rows, ((cols, vals), PerRow(diag)))| {
+        row_pieces(n, ROW_CHUNK, |u| offsets[u], parts)
+            .map(|(rows, ((cols, vals), PerRow(diag)))| {
                 let base = offsets[rows.start];
+                let mut c0 = 0.0f64;
                 for (du, u) in rows.enumerate() {
                     let row = nl.row(u);
                     let js = &idx[row.clone()];
                     let at = js.partition_point(|&j| (j as usize) < u);
                     let start = offsets[u] - base;
-                    let mut dsum = 0.0;
-                    for (e, (&j, &q)) in js.iter().zip(&wr2[row]).enumerate() {
+                    let (mut dsum, mut vw) = (0.0, 0.0);
+                    for (e, ((&j, &q), &wk)) in
+                        js.iter().zip(&wr2[row.clone()]).zip(&w[row]).enumerate()
+                    {
                         let a = c * two_d * vol[u] * vol[j as usize] * q;
                         if a == 0.0 {
-                            return false;
+                            return None;
                         }
                         dsum += a;
+                        vw += vol[j as usize] * wk;
                         let o = start + e + (e >= at) as usize;
                         cols[o] = j;
                         vals[o] = -a;
@@ -554,10 +608,11 @@ impl Assembly {
                     cols[start + at] = u as u32;
                     vals[start + at] = dsum + mass * vol[u];
                     diag[du] = offsets[u] + at;
+                    c0 = c0.max(vw);
                 }
-                true
-            },
-        )
+                Some(c0)
+            })
+            .reduce(|| Some(0.0), |a, b| Some(a?.max(b?)))
     }
 
     /// Fills the values of `K` for the current pair data (pattern must be up to date).
@@ -583,6 +638,17 @@ impl Assembly {
         sigma: &[f64],
     ) -> Result<(), SolveError> {
         self.fill(nl, vol, role, 1.0, c, Some(sigma))
+    }
+
+    /// `c0 = max_{i∈Ω} Σ_{j≠i} ω_j w_h(r_ij)` of `nl`'s pair data, when the last build of the
+    /// pattern summed it beside the values (a moving step's within-h pattern: the diagnostic
+    /// costs no pass of its own); the same value as [`crate::diagnostics::semi_regularity`]
+    /// with the volumes that build used.
+    pub fn c0_of<const D: usize>(&self, nl: &NeighborList<D>) -> Option<f64> {
+        match self.c0 {
+            Some((e, g, c0)) if e == nl.epoch() && g == nl.generation() => Some(c0),
+            _ => None,
+        }
     }
 
     /// True when the last fill used exactly these inputs (same pattern, same pair data
@@ -679,6 +745,7 @@ impl Assembly {
         if self.reuse_values {
             self.remember_values(key.generation, vol, mass, c, sigma);
         }
+        self.filled = Some((nl.epoch(), nl.generation()));
         Ok(())
     }
 

@@ -186,6 +186,7 @@ impl HelmholtzSolver {
             }
         }
         self.assembly.within_h = params.pattern_within_h;
+        self.assembly.keep_pairs = params.pattern_keep_pairs;
         self.assembly.reuse_values = params.reuse_values;
         let derived = poisson.and_then(|k| {
             self.assembly

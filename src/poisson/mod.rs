@@ -149,6 +149,12 @@ pub struct SolveParams {
     /// (1.5× the entries at skin 0.3h); left out (true) the pattern follows the pair set and
     /// is rebuilt whenever the pair data change. No effect without a skin.
     pub pattern_within_h: bool,
+    /// With `pattern_within_h`: the pattern kept while the neighbour list's set of pairs
+    /// within `h` is unchanged ([`crate::neighbors::NeighborList::pair_set`]), only its
+    /// values refilled, so that the caches keyed on the pattern (Cholesky's symbolic
+    /// analysis, the AMG hierarchy's pattern) hold (default true). Off: a new pattern at every
+    /// measure.
+    pub pattern_keep_pairs: bool,
 }
 
 impl SolveParams {
@@ -231,6 +237,7 @@ impl Default for SolveParams {
             amg_lag_factor: 1.5,
             amg_reuse_aggregates: true,
             pattern_within_h: true,
+            pattern_keep_pairs: true,
         }
     }
 }
@@ -444,6 +451,7 @@ impl PoissonSolver {
         params: &SolveParams,
     ) -> Result<bool, SolveError> {
         self.assembly.within_h = params.pattern_within_h;
+        self.assembly.keep_pairs = params.pattern_keep_pairs;
         self.assembly.reuse_values = params.reuse_values;
         let pattern_rebuilt = self.assembly.update_poisson(nl, vol, role)?;
         // moving particles: a new pattern every step, so the ordering's cost counts; nested

@@ -977,7 +977,7 @@ impl<const D: usize> ProjectionStep<D> {
         out: &mut Vec<[f64; D]>,
     ) -> Result<f64, Error> {
         let n = particles.len();
-        self.diagnostics(particles, nl, params)?;
+        self.diagnostics(particles, nl, params, None)?;
         let (role, vol) = (&particles.role, &particles.vol);
         let fluid = |i: usize| role[i] == Role::Fluid;
         let (sum_vol, count) = (0..n)
@@ -1063,12 +1063,14 @@ impl<const D: usize> ProjectionStep<D> {
     /// Connectivity (into `self.comps`), `c0`, the smallest spacing and the particles a
     /// floating component may leave disconnected, recomputed only when the pair data, roles
     /// or volumes changed (and `params.reuse_diagnostics`); the key's and the components'
-    /// vectors are overwritten in place.
+    /// vectors are overwritten in place. `c0_known`: `c0` of these pair data and volumes
+    /// when the caller has it (summed by the Poisson assembly).
     fn diagnostics(
         &mut self,
         particles: &Particles<D>,
         nl: &NeighborList<D>,
         params: &ProjectionParams<D>,
+        c0_known: Option<f64>,
     ) -> Result<(f64, f64, usize), Error> {
         let roles = role_fingerprint(&particles.role);
         let k = &mut self.diagnostics_key;
@@ -1086,7 +1088,11 @@ impl<const D: usize> ProjectionStep<D> {
                 &mut self.comps,
                 &mut self.connectivity_scratch,
             );
-            let c0 = semi_regularity(nl, &particles.vol, &particles.role, Region::Omega);
+            // (summed by the Poisson assembly of these pair data and volumes when it ran
+            // first: Assembly::c0_of)
+            let c0 = c0_known.unwrap_or_else(|| {
+                semi_regularity(nl, &particles.vol, &particles.role, Region::Omega)
+            });
             let spacing = min_spacing(nl, &particles.role, Region::Omega);
             self.diagnostics_values = (c0, spacing);
             let k = &mut self.diagnostics_key;
@@ -1202,10 +1208,35 @@ impl<const D: usize> ProjectionStep<D> {
             checks::check_field("accel", extra, &particles.role, false)?;
         }
         let plan = ProjectionPlan::new(params);
+        // moving particles with an implicit viscous term: the Poisson matrix is assembled
+        // first and the viscous one derived from it (Assembly::helmholtz_from), then the
+        // Poisson factor (if any) and the predictor run side by side, both reading it
+        // (with or without `overlap_solve_setup`, so that both give the same bits). The
+        // assembly sums c0's rows in the pass that writes the values: the diagnostics below
+        // take it from there instead of a pass of their own.
+        let mut solver = std::mem::take(&mut self.solver);
+        let t_assembly = Instant::now();
+        let mut k = None;
+        if plan.viscous_implicit
+            && self.viscous.is_moving()
+            && solver
+                .assemble_ahead(nl, &particles.vol, &particles.role, &params.solve)
+                .is_ok()
+        {
+            k = Some(std::mem::take(&mut solver.assembly));
+        }
+        let c0 = k.as_ref().and_then(|k| k.c0_of(nl));
+        let assembly_time = t_assembly.elapsed();
         let mut ahead = None;
         if plan.viscous_implicit || self.overlap_solve_setup {
             // connectivity before any solve, the viscous one included
-            self.diagnostics(particles, nl, params)?;
+            if let Err(e) = self.diagnostics(particles, nl, params, c0) {
+                if let Some(k) = k {
+                    solver.assembly = k;
+                }
+                self.solver = solver;
+                return Err(e);
+            }
             if self.overlap_solve_setup {
                 // the components, volumes and roles out of `self` while the predictor runs
                 // beside the setup (into kept vectors: no allocation)
@@ -1216,26 +1247,14 @@ impl<const D: usize> ProjectionStep<D> {
                 ahead = Some((std::mem::take(&mut self.comps), vol, role));
             }
         }
-        let diagnostics_seconds = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        // with `ahead`, the Poisson matrix of this configuration is assembled and factorised
-        // on one thread while the predictor runs on the others (without it that branch is
-        // empty); a failure there is left to `project`'s own solve, which meets the same
-        // inputs and reports it
-        let mut solver = std::mem::take(&mut self.solver);
-        // moving particles with an implicit viscous term: the Poisson matrix is assembled
-        // first and the viscous one derived from it (Assembly::helmholtz_from), then the
-        // Poisson factor (if any) and the predictor run side by side, both reading it
-        // (with or without `overlap_solve_setup`, so that both give the same bits)
-        let mut k = None;
-        if plan.viscous_implicit
-            && self.viscous.is_moving()
-            && solver
-                .assemble_ahead(nl, &particles.vol, &particles.role, &params.solve)
-                .is_ok()
-        {
-            k = Some(std::mem::take(&mut solver.assembly));
-        }
+        // the assembly above counts to the predictor, as when it ran after the diagnostics
+        let diagnostics_seconds = (t.elapsed() - assembly_time).as_secs_f64();
+        let t = Instant::now()
+            .checked_sub(assembly_time)
+            .unwrap_or_else(Instant::now);
+        // with `ahead`, the Poisson matrix of this configuration is factorised on one thread
+        // while the predictor runs on the others (without it that branch is empty); a failure
+        // there is left to `project`'s own solve, which meets the same inputs and reports it
         let (_, res) = rayon::join(
             || {
                 if let Some((comps, vol, role)) = &ahead {
@@ -1517,7 +1536,7 @@ impl<const D: usize> ProjectionStep<D> {
 
         // 1. diagnostics that must pass before any solve (recomputed only when the pair graph,
         //    roles or volumes changed: they are functions of those alone)
-        let (c0, spacing, disconnected) = self.diagnostics(particles, nl, params)?;
+        let (c0, spacing, disconnected) = self.diagnostics(particles, nl, params, None)?;
         report.connectivity = self.comps.summary();
         report.disconnected = disconnected;
         report.c0 = c0;
