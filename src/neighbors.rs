@@ -232,7 +232,10 @@ pub struct NeighborList<const D: usize> {
     cand_keep: Vec<u8>,
     /// The candidate search's per-chunk rows, kept between searches: fresh buffers of this
     /// size (100 MB in 3D at 10⁵ particles) cost more in page faults than the search itself.
-    search_rows: Vec<(Vec<u32>, Vec<u32>)>,
+    search_rows: Vec<(Vec<u32>, Vec<u32>, Vec<u32>)>,
+    /// The search's wrapped positions and cell grid, kept between searches.
+    x_wrapped: Vec<[f64; D]>,
+    grid: CellGrid<D>,
     x_ref: Vec<[f64; D]>,
     epoch: u64,
     rebuilds: u64,
@@ -290,6 +293,8 @@ impl<const D: usize> NeighborList<D> {
             cand_indices: Vec::new(),
             cand_keep: Vec::new(),
             search_rows: Vec::new(),
+            x_wrapped: Vec::new(),
+            grid: CellGrid::default(),
             x_ref: Vec::new(),
             epoch: 0,
             rebuilds: 0,
@@ -547,14 +552,13 @@ impl<const D: usize> NeighborList<D> {
         // periodic face — the other way; otherwise such a pair could be found from one end only
         let radius = (self.config.h + self.config.skin) * (1.0 + 1e-9);
         let r2 = radius * radius;
-        let xw: Vec<[f64; D]> = x
-            .par_iter()
-            .map(|p| {
-                let mut q = *p;
-                per.wrap(&mut q);
-                q
-            })
-            .collect();
+        let mut wrapped = std::mem::take(&mut self.x_wrapped);
+        wrapped.resize(n, [0.0; D]);
+        wrapped.par_iter_mut().zip(x.par_iter()).for_each(|(q, p)| {
+            *q = *p;
+            per.wrap(q);
+        });
+        let xw = &wrapped[..];
         let mut rows = std::mem::take(&mut self.search_rows);
         if n > 0 {
             match self.config.search {
@@ -578,7 +582,9 @@ impl<const D: usize> NeighborList<D> {
                     })
                 }
                 Search::CellGrid => {
-                    let grid = CellGrid::new(&xw, radius);
+                    let grid = &mut self.grid;
+                    grid.rebuild(xw, radius);
+                    let grid = &*grid;
                     candidate_rows(
                         n,
                         &mut rows,
@@ -595,25 +601,28 @@ impl<const D: usize> NeighborList<D> {
         } else {
             rows.clear();
         }
+        self.x_wrapped = wrapped;
         // the rows' offsets, then their indices copied in parallel into the kept buffer
         let mut offsets = std::mem::take(&mut self.cand_offsets);
         offsets.clear();
         offsets.reserve(n + 1);
         offsets.push(0usize);
-        let mut bounds = Vec::with_capacity(rows.len() + 1);
-        bounds.push(0usize);
-        for (counts, _) in &rows {
+        for (counts, _, _) in &rows {
             for &c in counts {
                 offsets.push(offsets.last().unwrap() + c as usize);
             }
-            bounds.push(*offsets.last().unwrap());
         }
         let mut indices = std::mem::take(&mut self.cand_indices);
         indices.resize(*offsets.last().unwrap(), 0);
-        split_by(&mut indices, &bounds)
-            .into_par_iter()
-            .zip(rows.par_iter())
-            .for_each(|(dst, (_, idx))| dst.copy_from_slice(idx));
+        // (split by chunks of rows without a vector of pieces)
+        let first = |c: usize| offsets[(c * SEARCH_CHUNK).min(n)];
+        row_pieces(rows.len(), 1, first, &mut indices[..]).for_each(|(chunks, dst)| {
+            let base = first(chunks.start);
+            for c in chunks {
+                let (at, idx) = (first(c) - base, &rows[c].1);
+                dst[at..at + idx.len()].copy_from_slice(idx);
+            }
+        });
         self.search_rows = rows;
         self.cand_offsets = offsets;
         self.cand_indices = indices;
@@ -948,33 +957,39 @@ fn for_image_shifts<const D: usize>(
     }
 }
 
+/// Particles per chunk of the candidate search's rows.
+const SEARCH_CHUNK: usize = 1024;
+
 /// The candidate rows of particles `0..n`, in parallel chunks of `rows` (one per 1024
 /// particles, buffers reused): `query(scratch, i, row)` pushes the candidates of `i` (with
 /// repeats and `i` itself allowed), which are then sorted, deduplicated and stripped of `i`;
-/// `scratch` is made once per chunk by `init`. Each chunk holds (row lengths, indices).
-fn candidate_rows<S, I, Q>(n: usize, rows: &mut Vec<(Vec<u32>, Vec<u32>)>, init: I, query: Q)
-where
+/// `scratch` is made once per chunk by `init`. Each chunk holds (row lengths, indices, the row being gathered).
+fn candidate_rows<S, I, Q>(
+    n: usize,
+    rows: &mut Vec<(Vec<u32>, Vec<u32>, Vec<u32>)>,
+    init: I,
+    query: Q,
+) where
     I: Fn() -> S + Sync,
     Q: Fn(&mut S, usize, &mut Vec<u32>) + Sync,
 {
-    const CHUNK: usize = 1024;
+    const CHUNK: usize = SEARCH_CHUNK;
     rows.resize_with(n.div_ceil(CHUNK), Default::default);
     rows.par_iter_mut()
         .enumerate()
-        .for_each(|(c, (counts, idx))| {
+        .for_each(|(c, (counts, idx, row))| {
             let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
             counts.clear();
             idx.clear();
-            let mut row: Vec<u32> = Vec::with_capacity(64);
             let mut scratch = init();
             for i in start..end {
                 row.clear();
-                query(&mut scratch, i, &mut row);
+                query(&mut scratch, i, row);
                 row.sort_unstable();
                 row.dedup();
                 row.retain(|&j| j as usize != i);
                 counts.push(row.len() as u32);
-                idx.extend_from_slice(&row);
+                idx.extend_from_slice(row);
             }
         });
 }
@@ -995,6 +1010,7 @@ fn bounding_box<const D: usize>(x: &[[f64; D]]) -> ([f64; D], [f64; D]) {
 /// A uniform grid over the bounding box of a point set, the points bucketed by cell (counting
 /// sort): `start[c]..start[c + 1]` of `items` are the points of cell `c`, and of `pos` their
 /// positions (copied in cell order, so that a query streams through them).
+#[derive(Clone, Debug)]
 struct CellGrid<const D: usize> {
     lo: [f64; D],
     inv: f64,
@@ -1002,12 +1018,30 @@ struct CellGrid<const D: usize> {
     start: Vec<u32>,
     items: Vec<u32>,
     pos: Vec<[f64; D]>,
+    /// Scratch of the counting sort: each point's cell, then the cells' fill positions.
+    cell: Vec<u32>,
+    fill: Vec<u32>,
+}
+
+impl<const D: usize> Default for CellGrid<D> {
+    fn default() -> Self {
+        CellGrid {
+            lo: [0.0; D],
+            inv: 0.0,
+            dims: [0; D],
+            start: Vec::new(),
+            items: Vec::new(),
+            pos: Vec::new(),
+            cell: Vec::new(),
+            fill: Vec::new(),
+        }
+    }
 }
 
 impl<const D: usize> CellGrid<D> {
     /// Cells of side at least `radius` (larger when the box would need more than ~4 cells per
     /// point: a few far-away points must not blow the grid up).
-    fn new(x: &[[f64; D]], radius: f64) -> Self {
+    fn rebuild(&mut self, x: &[[f64; D]], radius: f64) {
         let (lo, hi) = bounding_box(x);
         let mut side = radius;
         let cells = |side: f64| -> ([usize; D], f64) {
@@ -1031,29 +1065,35 @@ impl<const D: usize> CellGrid<D> {
             }
             c
         };
-        let cell: Vec<u32> = x.par_iter().map(|p| cell_of(p) as u32).collect();
-        let mut start = vec![0u32; total + 1];
-        for &c in &cell {
+        // (every vector overwritten in place: a search allocates nothing once they have grown)
+        let cell = &mut self.cell;
+        cell.resize(x.len(), 0);
+        cell.par_iter_mut()
+            .zip(x.par_iter())
+            .for_each(|(c, p)| *c = cell_of(p) as u32);
+        let start = &mut self.start;
+        start.clear();
+        start.resize(total + 1, 0);
+        for &c in cell.iter() {
             start[c as usize + 1] += 1;
         }
         for c in 0..total {
             start[c + 1] += start[c];
         }
-        let mut fill = start.clone();
-        let mut items = vec![0u32; x.len()];
+        let fill = &mut self.fill;
+        fill.clone_from(start);
+        let items = &mut self.items;
+        items.resize(x.len(), 0);
         for (i, &c) in cell.iter().enumerate() {
             items[fill[c as usize] as usize] = i as u32;
             fill[c as usize] += 1;
         }
-        let pos = items.par_iter().map(|&i| x[i as usize]).collect();
-        CellGrid {
-            lo,
-            inv,
-            dims,
-            start,
-            items,
-            pos,
-        }
+        self.pos.resize(x.len(), [0.0; D]);
+        self.pos
+            .par_iter_mut()
+            .zip(items.par_iter())
+            .for_each(|(q, &i)| *q = x[i as usize]);
+        (self.lo, self.inv, self.dims) = (lo, inv, dims);
     }
 
     /// Calls `visit(j)` for every point `j` of the grid with `|x_j − q|² ≤ r2`. The cells of
