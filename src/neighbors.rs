@@ -563,7 +563,7 @@ impl<const D: usize> NeighborList<D> {
         if n > 0 {
             match self.config.search {
                 Search::KdTree => {
-                    let tree: ImmutableKdTree<f64, D> = ImmutableKdTree::new_from_slice(&xw)
+                    let tree: ImmutableKdTree<f64, D> = ImmutableKdTree::new_from_slice(xw)
                         .map_err(|e| InputError::Parameter {
                             name: "positions".into(),
                             value: n as f64,
