@@ -698,6 +698,16 @@ fn moved_and_wrapped<const D: usize>(n: usize, h: f64, skin: f64, seed: u64) {
             }
             assert_eq!(nl.r2()[k].to_bits(), gpm::math::norm2(&d).to_bits());
         }
+        // the row sums the measure takes beside the pairs: the number density and the
+        // closest pair, as summed over the row afterwards
+        let ws: f64 = nl.row(i).map(|k| nl.w()[k]).sum();
+        assert_eq!(nl.w_sums()[i].to_bits(), ws.to_bits(), "{D}D: w sum of {i}");
+        let rm = nl.row(i).map(|k| nl.r2()[k]).fold(f64::INFINITY, f64::min);
+        assert_eq!(
+            nl.r2_mins()[i].to_bits(),
+            rm.to_bits(),
+            "{D}D: min r² of {i}"
+        );
     }
     assert!(
         deep > 0 && crossing > 0,
@@ -707,6 +717,7 @@ fn moved_and_wrapped<const D: usize>(n: usize, h: f64, skin: f64, seed: u64) {
 
 #[test]
 fn moved_and_wrapped_particles_measure_the_minimum_image_bit_for_bit() {
+    // (and the row sums taken with the pairs: `w_sums`, `r2_mins`)
     moved_and_wrapped::<2>(3000, 0.05, 0.015, 41);
     moved_and_wrapped::<3>(4000, 0.12, 0.03, 43);
 }

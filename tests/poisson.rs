@@ -1200,3 +1200,46 @@ fn a_within_h_pattern_is_kept_while_the_pair_set_holds() {
         assert!(same(&kept, &fresh(&p, &nl)), "{name}: after the change");
     }
 }
+
+#[test]
+fn the_assemblys_c0_is_semi_regularity_bit_for_bit() {
+    // c0 summed beside the values of a within-h pattern (what `predict` reports for moving
+    // particles) against the diagnostics' own pass, with unequal volumes: the same bits — on
+    // a periodic lattice (the in-place path) and in a box with wall images (the general path)
+    use gpm::diagnostics::{semi_regularity, Region};
+    use gpm::neighbors::{NeighborConfig, Periodicity};
+    let n = 20;
+    let dx = 1.0 / n as f64;
+    let mut p = gpm::particles::Particles::<2>::new();
+    for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
+        .into_iter()
+        .enumerate()
+    {
+        let a = 2.1 * k as f64;
+        let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
+        p.push(
+            x,
+            [0.0; 2],
+            0.0,
+            dx * dx * (1.0 + 0.2 * a.cos()),
+            Role::Fluid,
+        );
+    }
+    let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
+        .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
+    let nl = NeighborList::build(config, &p.x).unwrap();
+    let (walled, walled_nl, _) = walled_box(false);
+    for (name, p, nl) in [("periodic", &p, &nl), ("walled", &walled, &walled_nl)] {
+        let mut a = Assembly::default();
+        a.within_h = true;
+        a.update_poisson(nl, &p.vol, &p.role).unwrap();
+        let c0 = a.c0_of(nl).expect("summed by the build");
+        let expected = semi_regularity(nl, &p.vol, &p.role, Region::Omega);
+        assert!(expected > 0.5, "{name}: {expected}");
+        assert_eq!(
+            c0.to_bits(),
+            expected.to_bits(),
+            "{name}: {c0} vs {expected}"
+        );
+    }
+}
