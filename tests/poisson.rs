@@ -1069,30 +1069,7 @@ fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit
     // (skin pairs stored as zeros, rows filled by `fill`): the same nonzero entries, the same
     // bits — on a box with wall images (rows re-sorted) and on a periodic lattice (every
     // particle a fluid unknown: the rows written in place at `nl.offsets()[u] + u`)
-    use gpm::neighbors::{NeighborConfig, Periodicity};
-    let periodic = {
-        let n = 20;
-        let dx = 1.0 / n as f64;
-        let mut p = gpm::particles::Particles::<2>::new();
-        for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
-            .into_iter()
-            .enumerate()
-        {
-            let a = 2.1 * k as f64;
-            let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
-            p.push(
-                x,
-                [0.0; 2],
-                0.0,
-                dx * dx * (1.0 + 0.1 * a.cos()),
-                Role::Fluid,
-            );
-        }
-        let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
-            .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
-        let nl = NeighborList::build(config, &p.x).unwrap();
-        (p, nl)
-    };
+    let periodic = jittered_periodic(20, 0.1);
     let (walled, walled_nl, _) = walled_box(false);
     for (name, p, nl) in [
         ("periodic", &periodic.0, &periodic.1),
@@ -1132,24 +1109,7 @@ fn a_within_h_pattern_is_kept_while_the_pair_set_holds() {
     // (the caches keyed on it hold) and get a fresh build's values bit for bit; a move that
     // takes pairs across h builds a new pattern, again equal to a fresh build — on a periodic
     // lattice (the in-place path) and in a box with wall images (the general path)
-    use gpm::neighbors::{NeighborConfig, Periodicity};
-    let periodic = {
-        let n = 20;
-        let dx = 1.0 / n as f64;
-        let mut p = gpm::particles::Particles::<2>::new();
-        for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
-            .into_iter()
-            .enumerate()
-        {
-            let a = 2.1 * k as f64;
-            let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
-            p.push(x, [0.0; 2], 0.0, dx * dx, Role::Fluid);
-        }
-        let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
-            .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
-        let nl = NeighborList::build(config, &p.x).unwrap();
-        (p, nl, dx)
-    };
+    let periodic = jittered_periodic(20, 0.0);
     let (walled, walled_nl, _) = walled_box(false);
     for (name, mut p, mut nl, dx) in [
         ("periodic", periodic.0, periodic.1, periodic.2),
@@ -1207,27 +1167,7 @@ fn the_assemblys_c0_is_semi_regularity_bit_for_bit() {
     // particles) against the diagnostics' own pass, with unequal volumes: the same bits — on
     // a periodic lattice (the in-place path) and in a box with wall images (the general path)
     use gpm::diagnostics::{semi_regularity, Region};
-    use gpm::neighbors::{NeighborConfig, Periodicity};
-    let n = 20;
-    let dx = 1.0 / n as f64;
-    let mut p = gpm::particles::Particles::<2>::new();
-    for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
-        .into_iter()
-        .enumerate()
-    {
-        let a = 2.1 * k as f64;
-        let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
-        p.push(
-            x,
-            [0.0; 2],
-            0.0,
-            dx * dx * (1.0 + 0.2 * a.cos()),
-            Role::Fluid,
-        );
-    }
-    let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
-        .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
-    let nl = NeighborList::build(config, &p.x).unwrap();
+    let (p, nl, _) = jittered_periodic(20, 0.2);
     let (walled, walled_nl, _) = walled_box(false);
     for (name, p, nl) in [("periodic", &p, &nl), ("walled", &walled, &walled_nl)] {
         let mut a = Assembly::default();
@@ -1242,4 +1182,33 @@ fn the_assemblys_c0_is_semi_regularity_bit_for_bit() {
             "{name}: {c0} vs {expected}"
         );
     }
+}
+
+/// A jittered periodic lattice of `n × n` particles (volumes `dx²` times `1 + vol_jitter·cos`)
+/// and its list, `h = 3Δx`, skin `0.9Δx`: every particle a fluid unknown.
+fn jittered_periodic(
+    n: usize,
+    vol_jitter: f64,
+) -> (gpm::particles::Particles<2>, NeighborList<2>, f64) {
+    use gpm::neighbors::{NeighborConfig, Periodicity};
+    let dx = 1.0 / n as f64;
+    let mut p = gpm::particles::Particles::<2>::new();
+    for (k, x) in gpm::geometry::lattice([0.0; 2], [1.0; 2], dx)
+        .into_iter()
+        .enumerate()
+    {
+        let a = 2.1 * k as f64;
+        let x = [x[0] + 0.15 * dx * a.sin(), x[1] + 0.15 * dx * a.cos()];
+        p.push(
+            x,
+            [0.0; 2],
+            0.0,
+            dx * dx * (1.0 + vol_jitter * a.cos()),
+            Role::Fluid,
+        );
+    }
+    let config = NeighborConfig::new(Weight::WendlandC2, 3.0 * dx, 0.9 * dx)
+        .with_periodicity(Periodicity::all([0.0; 2], [1.0; 2]));
+    let nl = NeighborList::build(config, &p.x).unwrap();
+    (p, nl, dx)
 }
