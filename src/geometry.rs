@@ -58,22 +58,24 @@ pub fn inside<const D: usize>(x: &[f64; D], lo: &[f64; D], hi: &[f64; D]) -> boo
 
 /// Volumes `ω_i = 1 / Σ_{j≠i} w_h(r_ij)` (MISSION §2): on a uniform distribution this makes the
 /// consistency factor `S_i = Σ_{j≠i} ω_j w_h(r_ij)` equal to one, so that `∇h`, `∇̂h·` and `Δh`
-/// approximate the derivatives themselves rather than `S` times them.
+/// approximate the derivatives themselves rather than `S` times them. From the sums the list's
+/// measure took ([`NeighborList::w_sums`]): no pass over the pairs.
 pub fn number_density_volumes<const D: usize>(nl: &NeighborList<D>) -> Vec<f64> {
-    let mut v = Vec::new();
-    number_density_volumes_into(nl, &mut v);
-    v
+    nl.w_sums()
+        .iter()
+        .map(|&s| number_density_volume(s))
+        .collect()
 }
 
-/// [`number_density_volumes`] into `out` (resized to the list; its memory reused), from the
-/// sums the list's measure took ([`NeighborList::w_sums`]): no pass over the pairs.
-pub fn number_density_volumes_into<const D: usize>(nl: &NeighborList<D>, out: &mut Vec<f64>) {
-    out.clear();
-    out.extend(
-        nl.w_sums()
-            .iter()
-            .map(|&s| if s > 0.0 { 1.0 / s } else { f64::INFINITY }),
-    );
+/// The volume `1 / s` of a particle whose weight sum is `s` (`∞` for `s ≤ 0`: no neighbour),
+/// the rule of [`number_density_volumes`] for one particle (the drivers set volumes in place
+/// with it).
+pub fn number_density_volume(s: f64) -> f64 {
+    if s > 0.0 {
+        1.0 / s
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// `Σ_{j≠i} w_h(r_ij)` on an infinite cell-centred lattice of spacing `dx`: the constant behind

@@ -20,7 +20,7 @@
 
 use crate::boundary::Boundary;
 use crate::error::Error;
-use crate::geometry::number_density_volumes;
+use crate::geometry::number_density_volume;
 use crate::neighbors::{NeighborConfig, NeighborList};
 use crate::pair_weights::{MomentWeights, PairWeights};
 use crate::particles::{Particles, Role};
@@ -174,10 +174,10 @@ fn set_volumes<const D: usize>(
     volumes: VolumeRule,
 ) {
     if volumes == VolumeRule::NumberDensity {
-        let v = number_density_volumes(nl);
-        for (i, r) in particles.role.iter().enumerate() {
+        let p = &mut *particles;
+        for ((vol, r), &s) in p.vol.iter_mut().zip(&p.role).zip(nl.w_sums()) {
             if r.is_fluid() {
-                particles.vol[i] = v[i];
+                *vol = number_density_volume(s);
             }
         }
     }

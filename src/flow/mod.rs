@@ -27,6 +27,7 @@ pub mod shifting;
 use crate::boundary::Boundary;
 use crate::consistent::GradientKind;
 use crate::error::{Error, InputError};
+use crate::geometry::number_density_volume;
 use crate::neighbors::{closest_pair, NeighborConfig, NeighborList};
 use crate::particles::{Particles, Role};
 use crate::projection::{ProjectionParams, ProjectionStep, Scheme, StepReport};
@@ -483,8 +484,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             for ((vol, r), &s) in p.vol.iter_mut().zip(&p.role).zip(self.nl.w_sums()) {
                 // a particle without neighbours (number density 0) keeps the volume it had: it
                 // carries its mass ballistically until it rejoins (`Disconnected::Float`)
-                if r.is_fluid() && s > 0.0 && (1.0 / s).is_finite() {
-                    *vol = 1.0 / s;
+                let v = number_density_volume(s);
+                if r.is_fluid() && v.is_finite() {
+                    *vol = v;
                 }
             }
             // ghosts copy their source's volume

@@ -41,16 +41,6 @@ pub struct CgInfo {
     pub final_residual: f64,
 }
 
-impl CgWork {
-    /// The four single-column vectors sized to `n` (values left as they were: every run
-    /// writes each before it reads it).
-    fn size(&mut self, n: usize) {
-        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
-            v.resize(n, 0.0);
-        }
-    }
-}
-
 /// A symmetric positive (semi-)definite approximation `B ≈ K⁻¹` applied as `z = B r`.
 pub trait Preconditioner {
     /// `z = B r` (`z` need not be initialised).
@@ -217,6 +207,16 @@ pub struct CgWork {
     z: Vec<f64>,
     p: Vec<f64>,
     q: Vec<f64>,
+}
+
+impl CgWork {
+    /// The four single-column vectors sized to `n` (values left as they were: every run
+    /// writes each before it reads it).
+    fn size(&mut self, n: usize) {
+        for v in [&mut self.r, &mut self.z, &mut self.p, &mut self.q] {
+            v.resize(n, 0.0);
+        }
+    }
 }
 
 /// [`pcg_multi`] with its vectors in `work` (reused: no allocation once they have grown to
