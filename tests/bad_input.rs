@@ -687,6 +687,9 @@ fn invalid_configurations_name_the_key() {
     assert_eq!(cav(&|c| c.scene.lid_ramp = 0.7), "lid_ramp");
     assert_eq!(cav(&|c| c.scene.lid_ramp = f64::NAN), "lid_ramp");
     assert_eq!(cav(&|c| c.scene.lid_ramp = -0.1), "lid_ramp");
+    assert_eq!(cav(&|c| c.scene.source_band = 1.5), "source_band");
+    assert_eq!(cav(&|c| c.scene.source_band = f64::NAN), "source_band");
+    assert_eq!(cav(&|c| c.scene.source_band = -0.25), "source_band");
     assert_eq!(
         cav(&|c| c.scene.steady.average_window = f64::NAN),
         "steady.average_window"

@@ -182,7 +182,9 @@ pub struct ProjectionParams<const D: usize> {
     /// holds only up to wall terms, and an impulsively started lid gives ratios above 1);
     /// [`VectorKind::RestWalls`] takes the no-slip images across walls at rest (the odd
     /// continuation, smooth where the velocity vanishes on the wall; the mirror's even one has
-    /// a kink there) and the mirror across moving ones (a lid's speed jumps at its corners).
+    /// a kink there), the mirror across moving ones and at their corners, and blends the two
+    /// within a moving wall's [`crate::boundary::Wall::source_band`] (the odd images' net flux
+    /// next to a lid whose speed jumps at its corners is a first-order mass source).
     pub source_ghosts: VectorKind,
     /// Reuse connectivity and `c0` while the pair data, roles and volumes are bit-identical
     /// (they are functions of those alone; default true).
@@ -1581,6 +1583,7 @@ impl<const D: usize> ProjectionStep<D> {
         let t = Instant::now();
         let f = &mut self.work_vec2;
         stages::source_field(
+            &particles.x,
             role,
             boundary,
             params.source_ghosts,

@@ -34,9 +34,11 @@ use rayon::prelude::*;
 /// divergent within `h` of it — at a free surface, the water flowing toward its moving surface
 /// would look compressed); when the boundary has ghosts and
 /// `ghost_rule` is [`VectorKind::Mirror`] or [`VectorKind::RestWalls`], the ghosts are refilled
-/// by that rule (else they keep `scale` times the ghost values of `v`, which the caller filled
-/// by the no-slip rule).
+/// by that rule (`x`: the positions, which [`VectorKind::RestWalls`]'s band reads; else they
+/// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
+#[allow(clippy::too_many_arguments)]
 pub fn source_field<const D: usize>(
+    x: &[[f64; D]],
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
@@ -52,11 +54,15 @@ pub fn source_field<const D: usize>(
         f[i] = if !keep_band && matches!(role[i], Role::Dirichlet) {
             [0.0; D]
         } else {
-            v[i].map(|x| scale * x)
+            v[i]
         };
     }
+    // the rule continues the velocity (an affine rule would not commute with the scaling)
     if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
-        boundary.fill_vector(role, f, ghost_rule);
+        boundary.fill_vector_at(x, role, f, ghost_rule);
+    }
+    if scale != 1.0 {
+        f.par_iter_mut().for_each(|fi| *fi = fi.map(|c| scale * c));
     }
 }
 
@@ -95,7 +101,7 @@ pub fn divergence_into<const D: usize>(
             work.resize(n, [0.0; D]);
             renorm.apply_transpose_into(v, work);
             if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
-                boundary.fill_vector(role, work, ghost_rule);
+                boundary.fill_vector_at(x, role, work, ghost_rule);
             }
             div_sum_into(nl, vol, work, out);
         }
@@ -272,7 +278,7 @@ pub fn measure_divergence<const D: usize>(
     work2: &mut Vec<[f64; D]>,
     div: &mut Vec<f64>,
 ) -> f64 {
-    source_field(role, boundary, ghost_rule, kind, 1.0, v, work);
+    source_field(x, role, boundary, ghost_rule, kind, 1.0, v, work);
     divergence_into(
         nl, vol, x, role, boundary, ghost_rule, kind, ops, work, work2, div,
     );

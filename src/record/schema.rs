@@ -1117,6 +1117,10 @@ pub struct WallSpec {
     /// files written before ramped walls existed: `0`, a uniform wall velocity).
     #[serde(default)]
     pub ramp: f64,
+    /// Width of the source continuation's band next to the wall ([`Wall::source_band`]; absent
+    /// in files written before it existed: `0`, no band).
+    #[serde(default)]
+    pub source_band: f64,
 }
 
 /// A serialisable boundary: enough to rebuild [`Walls`], [`PeriodicBox`] or [`NoBoundary`]; a
@@ -1171,6 +1175,7 @@ impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
                         velocity,
                         slip,
                         ramp,
+                        source_band,
                     } = *w;
                     WallSpec {
                         axis,
@@ -1179,6 +1184,7 @@ impl<const D: usize> ToBoundarySpec<D> for Walls<D> {
                         velocity: velocity.to_vec(),
                         slip,
                         ramp,
+                        source_band,
                     }
                 })
                 .collect(),
@@ -1233,6 +1239,7 @@ impl BoundarySpec {
                         velocity: to_array("wall velocity", &w.velocity)?,
                         slip: w.slip,
                         ramp: w.ramp,
+                        source_band: w.source_band,
                     });
                 }
                 if out.len() > 8 {
@@ -1324,7 +1331,10 @@ pub enum GhostContinuation {
     Velocity,
     /// [`VectorKind::Mirror`]: normal components flipped.
     Mirror,
-    /// [`VectorKind::RestWalls`]: no-slip images across walls at rest, mirror across moving ones.
+    /// [`VectorKind::RestWalls`]: no-slip images across walls at rest, mirror across moving
+    /// ones and at their corners, blended within a moving wall's [`WallSpec::source_band`].
+    /// (Files written before 2026-11-28 evening had the no-slip rule's mean at a moving wall's
+    /// corners, and no band; they re-run with this rule.)
     RestWalls,
 }
 

@@ -12,7 +12,7 @@
 
 use super::cavity::{
     build_box, profile_errors, profile_tables, validate_lid_and_steady, BoxSummary, CavityResult,
-    CavityState, SourceGhosts, SteadyCriterion,
+    CavityState, SourceGhosts, SteadyCriterion, SOURCE_BAND,
 };
 use super::{FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
@@ -40,13 +40,19 @@ pub struct Cube {
     pub lid_ramp: f64,
     /// Continuation of the Poisson source into the wall ghosts.
     pub source_ghosts: SourceGhosts,
+    /// Width, in side lengths, of the band next to the lid within which the `rest_walls`
+    /// source continuation blends the walls at rest's no-slip images into the mirror
+    /// ([`crate::boundary::Wall::source_band`]; default ¼; `0`: none — a first-order mass
+    /// source at the lid corners).
+    pub source_band: f64,
 }
 
 super::config_fields!(Cube {
     steady,
     lid,
     lid_ramp,
-    source_ghosts
+    source_ghosts,
+    source_band
 });
 
 /// Configuration of a cube run (one flat object; unknown keys are rejected).
@@ -59,6 +65,7 @@ impl Default for Cube {
             lid: 1.0,
             lid_ramp: 0.0,
             source_ghosts: SourceGhosts::Auto,
+            source_band: SOURCE_BAND,
         }
     }
 }
@@ -78,7 +85,7 @@ impl SceneParams for Cube {
     }
 
     fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        validate_lid_and_steady(self.lid, self.lid_ramp, &self.steady)
+        validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)
     }
 }
 
@@ -90,6 +97,7 @@ pub fn build(cfg: &CubeConfig) -> Result<Simulation<3, Walls<3>>, Error> {
         cfg.scene.lid,
         cfg.scene.lid_ramp,
         cfg.scene.source_ghosts,
+        cfg.scene.source_band,
     )
 }
 
