@@ -90,7 +90,8 @@ struct Args {
     /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles
     /// and for the GPM operators, no-slip for the consistent ones on fixed particles), mirror,
     /// no-slip, or rest-walls (no-slip images across the walls at rest, the mirror across the
-    /// lid).
+    /// lid and at its corners, the two blended within the scene key `source_band`, ¼ side, of
+    /// the lid; use with `--h-ratio 2.5`).
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Width of the lid's corner ramp in side lengths (0: the classic lid, discontinuous at the

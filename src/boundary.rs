@@ -223,6 +223,12 @@ impl<const D: usize> Wall<D> {
         }
     }
 
+    /// True when the wall moves (a velocity other than zero).
+    #[inline]
+    pub fn moves(&self) -> bool {
+        self.velocity.iter().any(|&u| u != 0.0)
+    }
+
     /// Mirror image of `x`.
     #[inline]
     pub fn reflect(&self, x: &[f64; D]) -> [f64; D] {
@@ -307,7 +313,7 @@ impl<const D: usize> Walls<D> {
     /// times the ramp factor `Π_j S(d_j/δ)` ([`Wall::ramp`]), and the factor's gradient.
     fn wall_velocity_at(&self, k: usize, x: &[f64; D]) -> ([f64; D], [f64; D]) {
         let w = &self.walls[k];
-        if w.ramp <= 0.0 || w.velocity.iter().all(|&u| u == 0.0) {
+        if w.ramp <= 0.0 || !w.moves() {
             return (w.velocity, [0.0; D]);
         }
         let (mut f, mut df) = (1.0, [0.0; D]);
@@ -335,9 +341,8 @@ impl<const D: usize> Walls<D> {
     /// [`VectorKind::RestWalls`] across the walls in `mask` for a source with velocity `v` at
     /// `x` (`None`: no band applies).
     fn rest_walls_image(&self, v: &[f64; D], mask: u8, x: Option<&[f64; D]>) -> [f64; D] {
-        let moves = |w: &Wall<D>| w.velocity.iter().any(|&u| u != 0.0);
         let crossed = |k: usize| mask & (1 << k) != 0;
-        if (0..self.walls.len()).any(|k| crossed(k) && moves(&self.walls[k])) {
+        if (0..self.walls.len()).any(|k| crossed(k) && self.walls[k].moves()) {
             return self.mirror_image(v, mask);
         }
         let odd = self.velocity_image(v, mask);
@@ -345,7 +350,7 @@ impl<const D: usize> Walls<D> {
         let beta: f64 = self
             .walls
             .iter()
-            .filter(|w| moves(w) && w.source_band > 0.0)
+            .filter(|w| w.moves() && w.source_band > 0.0)
             .map(|w| smooth_step(w.distance(x) / w.source_band))
             .product();
         if beta == 1.0 {
@@ -357,9 +362,7 @@ impl<const D: usize> Walls<D> {
 
     /// True when some wall's velocity varies along it.
     fn ramped(&self) -> bool {
-        self.walls
-            .iter()
-            .any(|w| w.ramp > 0.0 && w.velocity.iter().any(|&u| u != 0.0))
+        self.walls.iter().any(|w| w.ramp > 0.0 && w.moves())
     }
 
     fn velocity_image(&self, v: &[f64; D], mask: u8) -> [f64; D] {
