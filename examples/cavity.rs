@@ -49,9 +49,10 @@ struct Args {
     /// Reference weight: cubic, wendland2, wendland4, polyP-M (r^P (1-r)^M).
     #[arg(long, default_value = "wendland2")]
     weight: Weight,
-    /// Influence radius over particle spacing, h/Δx.
-    #[arg(long, default_value_t = 3.0)]
-    h_ratio: f64,
+    /// Influence radius over particle spacing, h/Δx (default 2.5 for fixed particles, 3 with
+    /// --motion lagrangian).
+    #[arg(long)]
+    h_ratio: Option<f64>,
     /// Particle frame: eulerian (fixed particles) or lagrangian (advected + shifting).
     #[arg(long, default_value = "eulerian")]
     motion: Motion,
@@ -87,11 +88,12 @@ struct Args {
     /// Averaging window for the profiles (time units).
     #[arg(long)]
     average: Option<f64>,
-    /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles
-    /// and for the GPM operators, no-slip for the consistent ones on fixed particles), mirror,
-    /// no-slip, or rest-walls (no-slip images across the walls at rest, the mirror across the
-    /// lid and at its corners, the two blended within the scene key `source_band`, ¼ side, of
-    /// the lid; use with `--h-ratio 2.5`).
+    /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles,
+    /// rest-walls for fixed ones with the GPM operators, no-slip with the consistent ones),
+    /// mirror, no-slip, or rest-walls (no-slip images across the walls at rest, the mirror
+    /// across the lid and at its corners, the two blended within the scene key `source_band`,
+    /// ¼ side, of the lid). Before 2026-11-29 auto was the mirror on fixed particles too, with
+    /// h = 3Δx: `--source-ghosts mirror --h-ratio 3` reproduces those runs.
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,
     /// Width of the lid's corner ramp in side lengths (0: the classic lid, discontinuous at the
@@ -136,7 +138,9 @@ fn config(a: &Args) -> CavityConfig {
         c.scheme = a.scheme;
         c.gradient = a.gradient;
         c.weight = a.weight;
-        c.h_over_dx = a.h_ratio;
+        c.h_over_dx = a
+            .h_ratio
+            .unwrap_or(gpm::scene::cavity::default_h_ratio(a.motion));
         c.motion = a.motion;
         c.integrator = a.integrator;
         c.convection = a.convection;
@@ -175,6 +179,8 @@ fn config(a: &Args) -> CavityConfig {
         cfg.scene.steady.average_window = w;
     }
     cfg.solve.solver = a.solver;
+    // `summary.json`'s configuration names the rule `auto` stands for in this run
+    cfg.scene.source_ghosts = cfg.scene.source_ghosts.resolve::<2>(&cfg);
     cfg
 }
 

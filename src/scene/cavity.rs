@@ -55,6 +55,20 @@ pub fn lagrangian_cfl(re: f64, n: usize) -> f64 {
     }
 }
 
+/// The influence radius `h/Δx` the cavity example gives a cavity in the frame `motion` unless
+/// `--h-ratio` is given: 2.5 on fixed particles, where the rest-walls source rule
+/// ([`SourceGhosts::resolve`]) is most accurate with it (Re 1000, RMS u / v against the
+/// extrapolated reference, n = 48: 0.48 % / 0.27 % with `h = 2.5Δx`, 1.45 % / 1.26 % with
+/// `3Δx`; n = 108: 0.097 % / 0.120 %, 0.150 % / 0.137 %), and 3 for moving particles, where
+/// `2.5Δx` fails (Re 100, n = 50: a particle under the top-right lid corner at 3.6 U by step 34,
+/// with either source rule). A configuration file sets `h_over_dx` itself (default 3).
+pub fn default_h_ratio(motion: crate::flow::Motion) -> f64 {
+    match motion {
+        crate::flow::Motion::Eulerian => 2.5,
+        crate::flow::Motion::Lagrangian => 3.0,
+    }
+}
+
 /// The viscous Laplacian of the cavity and the cube by default: the least-squares `Δˡˢ`,
 /// exact on quadratic velocities that take the wall's value, where the GPM `Δh` with no-slip
 /// images is off by `O(1)` within `h` of a wall (the odd image of `u = b y + c y²` has the
@@ -195,9 +209,11 @@ pub type CavityConfig = SceneConfig<Cavity>;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SourceGhosts {
-    /// Mirror for moving particles; otherwise the operator set's rule: mirror for the GPM
-    /// operators, no-slip for the consistent ones (see
-    /// [`crate::projection::ProjectionParams::with_consistent_operators`]). With the no-slip
+    /// Resolved by [`SourceGhosts::resolve`]: mirror for moving particles; on fixed particles
+    /// the rest-walls rule in the square cavity and the mirror in the cube with the GPM
+    /// operators, no-slip with the consistent ones (see
+    /// [`crate::projection::ProjectionParams::with_consistent_operators`]); until 2026-11-29
+    /// the mirror for the GPM operators in the square cavity too. With the no-slip
     /// images the divergence's wall points carry the lid's speed right up to the corner, where
     /// the side wall's carry zero: the source is `O(1/Δx)` at the lid corners, and a Lagrangian
     /// cavity at Re 1000 fails there (n = 50: t = 0.2 with the no-slip rule; with the mirror
@@ -230,6 +246,32 @@ impl std::str::FromStr for SourceGhosts {
 }
 
 impl SourceGhosts {
+    /// The rule [`SourceGhosts::Auto`] stands for in a `D`-dimensional lid-driven box run with
+    /// `flow`: the mirror for moving particles (with the no-slip images the lid's speed enters
+    /// the source at the lid corners, and the Lagrangian cavity at Re 1000 fails there; the
+    /// rest-walls rule runs, but less accurately: Re 100 n = 50 with `h = 3Δx` 0.25 % / 0.34 %
+    /// RMS u / v against the extrapolated reference, the mirror 0.16 % / 0.15 %); on fixed
+    /// particles with the GPM operators, the rest-walls rule in the square cavity (measured
+    /// against the extrapolated reference at Re 1000, n = 48 / 100, `h = 2.5Δx`: 0.48 % /
+    /// 0.27 %, 0.11 % / 0.13 % where the mirror gives 1.59 % / 1.75 %, 0.40 % / 0.56 % with
+    /// `h = 3Δx`) and the mirror in the cube (the rule is not measured there); the operator
+    /// set's own rule (`Auto` stays) with the consistent operators on fixed particles. Any
+    /// other value is returned as it is.
+    pub fn resolve<const D: usize>(self, flow: &FlowConfig) -> SourceGhosts {
+        if self != SourceGhosts::Auto {
+            return self;
+        }
+        if flow.motion == crate::flow::Motion::Lagrangian {
+            SourceGhosts::Mirror
+        } else if flow.operators.consistent(false) {
+            SourceGhosts::Auto
+        } else if D == 2 {
+            SourceGhosts::RestWalls
+        } else {
+            SourceGhosts::Mirror
+        }
+    }
+
     /// The rule, `None` for [`SourceGhosts::Auto`] (the operator set's).
     pub fn rule(self) -> Option<crate::boundary::VectorKind> {
         match self {
@@ -356,6 +398,7 @@ pub fn build_box<const D: usize>(
     for x in lattice([0.0; D], [1.0; D], dx) {
         p.push(x, [0.0; D], 0.0, dx.powi(D as i32), Role::Fluid);
     }
+    let source_ghosts = source_ghosts.resolve::<D>(flow);
     let mut walls = Walls::closed_box([0.0; D], [1.0; D]);
     for wall in &mut walls.walls {
         if wall.axis == 1 && wall.inward < 0.0 {
@@ -368,14 +411,9 @@ pub fn build_box<const D: usize>(
         }
     }
     let mut params = flow.flow_params(lid);
-    match source_ghosts.rule() {
-        Some(rule) => params.projection.source_ghosts = rule,
-        // moving particles: the mirror rule (with the no-slip images the lid's speed enters
-        // the source at the lid corners, and the Lagrangian cavity at Re 1000 fails there)
-        None if flow.motion == crate::flow::Motion::Lagrangian => {
-            params.projection.source_ghosts = crate::boundary::VectorKind::Mirror;
-        }
-        None => {}
+    // `None`: the operator set's rule (no-slip for the consistent operators on fixed particles)
+    if let Some(rule) = source_ghosts.rule() {
+        params.projection.source_ghosts = rule;
     }
     Simulation::new(p, walls, flow.neighbor_config(), params)
 }
