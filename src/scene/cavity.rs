@@ -1200,6 +1200,63 @@ pub fn write_profile_plot(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::boundary::VectorKind;
+    use crate::flow::Motion;
+
+    /// What `auto` stands for: the rest-walls rule (with its band on the lid) for the square
+    /// cavity's fixed particles, the mirror for moving ones and for the cube, the operator
+    /// set's no-slip rule with the consistent operators; an explicit choice is kept.
+    #[test]
+    fn auto_source_rule_resolves_per_frame_dimension_and_operator_set() {
+        let flow = |motion, operators| {
+            CavityConfig::default().with(|c| {
+                c.motion = motion;
+                c.operators = operators;
+            })
+        };
+        let (gpm, consistent) = (
+            super::super::OperatorSet::Auto,
+            super::super::OperatorSet::Consistent,
+        );
+        let fixed = flow(Motion::Eulerian, gpm);
+        assert_eq!(
+            SourceGhosts::Auto.resolve::<2>(&fixed),
+            SourceGhosts::RestWalls
+        );
+        assert_eq!(
+            SourceGhosts::Auto.resolve::<3>(&fixed),
+            SourceGhosts::Mirror
+        );
+        let moving = flow(Motion::Lagrangian, gpm);
+        assert_eq!(
+            SourceGhosts::Auto.resolve::<2>(&moving),
+            SourceGhosts::Mirror
+        );
+        let ls = flow(Motion::Eulerian, consistent);
+        assert_eq!(SourceGhosts::Auto.resolve::<2>(&ls), SourceGhosts::Auto);
+        assert_eq!(
+            SourceGhosts::NoSlip.resolve::<2>(&fixed),
+            SourceGhosts::NoSlip
+        );
+        assert_eq!(
+            SourceGhosts::Mirror.resolve::<2>(&fixed),
+            SourceGhosts::Mirror
+        );
+
+        // the built cavities: the projection's rule and the lid's band
+        let n8 = |c: CavityConfig| c.with(|c| c.n = 8);
+        let sim = build(&n8(fixed)).unwrap();
+        assert_eq!(sim.params.projection.source_ghosts, VectorKind::RestWalls);
+        let lid = sim.boundary.walls.iter().find(|w| w.moves()).unwrap();
+        assert_eq!(lid.source_band, SOURCE_BAND);
+        let sim = build(&n8(moving)).unwrap();
+        assert_eq!(sim.params.projection.source_ghosts, VectorKind::Mirror);
+        assert!(sim.boundary.walls.iter().all(|w| w.source_band == 0.0));
+        let sim = build(&n8(ls)).unwrap();
+        assert_eq!(sim.params.projection.source_ghosts, VectorKind::Velocity);
+        assert_eq!(default_h_ratio(Motion::Eulerian), 2.5);
+        assert_eq!(default_h_ratio(Motion::Lagrangian), 3.0);
+    }
 
     /// Samples every 0.5 time units of a one-point "profile" `c + drift t ± noise`.
     fn samples(drift: f64, noise: f64, count: usize) -> Vec<(f64, Vec<f64>, Vec<f64>)> {
