@@ -1219,29 +1219,21 @@ mod tests {
             super::super::OperatorSet::Consistent,
         );
         let fixed = flow(Motion::Eulerian, gpm);
-        assert_eq!(
-            SourceGhosts::Auto.resolve::<2>(&fixed),
-            SourceGhosts::RestWalls
-        );
+        let moving = flow(Motion::Lagrangian, gpm);
+        let ls = flow(Motion::Eulerian, consistent);
         assert_eq!(
             SourceGhosts::Auto.resolve::<3>(&fixed),
             SourceGhosts::Mirror
         );
-        let moving = flow(Motion::Lagrangian, gpm);
-        assert_eq!(
-            SourceGhosts::Auto.resolve::<2>(&moving),
-            SourceGhosts::Mirror
-        );
-        let ls = flow(Motion::Eulerian, consistent);
-        assert_eq!(SourceGhosts::Auto.resolve::<2>(&ls), SourceGhosts::Auto);
-        assert_eq!(
-            SourceGhosts::NoSlip.resolve::<2>(&fixed),
-            SourceGhosts::NoSlip
-        );
-        assert_eq!(
-            SourceGhosts::Mirror.resolve::<2>(&fixed),
-            SourceGhosts::Mirror
-        );
+        for (rule, cfg, want) in [
+            (SourceGhosts::Auto, &fixed, SourceGhosts::RestWalls),
+            (SourceGhosts::Auto, &moving, SourceGhosts::Mirror),
+            (SourceGhosts::Auto, &ls, SourceGhosts::Auto),
+            (SourceGhosts::NoSlip, &fixed, SourceGhosts::NoSlip),
+            (SourceGhosts::Mirror, &fixed, SourceGhosts::Mirror),
+        ] {
+            assert_eq!(rule.resolve::<2>(cfg), want, "{rule:?} in {:?}", cfg.motion);
+        }
 
         // the built cavities: the projection's rule and the lid's band
         let n8 = |c: CavityConfig| c.with(|c| c.n = 8);
