@@ -192,7 +192,8 @@ struct RunArgs {
     /// Reference weight: cubic, wendland2, wendland4, polyP-M.
     #[arg(long)]
     weight: Option<Weight>,
-    /// Influence radius over particle spacing.
+    /// Influence radius over particle spacing (default: the scene's `h_over_dx`, 3, or 4 for
+    /// the dam breaks; unlike the cavity example, which takes 2.5 for fixed particles).
     #[arg(long)]
     h_ratio: Option<f64>,
     /// Particle frame: lagrangian or eulerian.
