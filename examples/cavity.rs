@@ -37,7 +37,8 @@ struct Args {
     /// Fluid particles per side.
     #[arg(long, default_value_t = 50)]
     n: usize,
-    /// End time (the run stops earlier once steady); default 40, or 150 for Re > 500.
+    /// End time (the run stops earlier once steady); default 40, 150 for Re > 500, 800 for
+    /// Re > 2000 (the high-Re cavity settles slowly: Re 5000 at n = 128 at t ≈ 570).
     #[arg(long)]
     t_end: Option<f64>,
     /// Pressure scheme: non-incremental, incremental, rotational.
@@ -131,6 +132,20 @@ struct Args {
     initial: Option<PathBuf>,
 }
 
+/// The example's end time when `--t-end` is not given: long enough for the run to settle
+/// (it stops once steady). Measured with the defaults: Re 1000 steady at t ≈ 85, Re 3200 at
+/// n = 64 at t ≈ 352, Re 5000 at n = 128 at t ≈ 566 (its slowest mode decays over ≈ 80 time
+/// units); Re 10 000 does not settle at n = 128 and runs to the end.
+fn default_t_end(re: f64) -> f64 {
+    if re > 2000.0 {
+        800.0
+    } else if re > 500.0 {
+        150.0
+    } else {
+        40.0
+    }
+}
+
 fn config(a: &Args) -> CavityConfig {
     let mut cfg = CavityConfig::default().with(|c| {
         c.re = a.re;
@@ -151,7 +166,7 @@ fn config(a: &Args) -> CavityConfig {
         if a.laplacian.is_some() {
             c.laplacian = a.laplacian;
         }
-        c.t_end = a.t_end.unwrap_or(if a.re > 500.0 { 150.0 } else { 40.0 });
+        c.t_end = a.t_end.unwrap_or(default_t_end(a.re));
         c.initial = a.initial.clone();
     });
     if let Some(s) = a.shift {
