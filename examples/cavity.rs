@@ -37,8 +37,8 @@ struct Args {
     /// Fluid particles per side.
     #[arg(long, default_value_t = 50)]
     n: usize,
-    /// End time (the run stops earlier once steady); default 40, 150 for Re > 500, 800 for
-    /// Re > 2000 (the high-Re cavity settles slowly: Re 5000 at n = 128 at t ≈ 570).
+    /// End time (the run stops earlier once steady); default Re/5 within [40, 800] (the cavity
+    /// settles at t ≈ Re/10: Re 400 at 37.5, Re 1000 at ≈ 85, Re 5000 at n = 128 at ≈ 566).
     #[arg(long)]
     t_end: Option<f64>,
     /// Pressure scheme: non-incremental, incremental, rotational.
@@ -132,18 +132,13 @@ struct Args {
     initial: Option<PathBuf>,
 }
 
-/// The example's end time when `--t-end` is not given: long enough for the run to settle
-/// (it stops once steady). Measured with the defaults: Re 1000 steady at t ≈ 85, Re 3200 at
-/// n = 64 at t ≈ 352, Re 5000 at n = 128 at t ≈ 566 (its slowest mode decays over ≈ 80 time
-/// units); Re 10 000 does not settle at n = 128 and runs to the end.
+/// The example's end time when `--t-end` is not given: `Re/5` within `[40, 800]`, about twice
+/// the time the run needs to settle (it stops once steady). Measured with the defaults: Re 100
+/// steady at t ≈ 17, Re 400 at 37.5, Re 1000 at ≈ 85, Re 3200 at n = 64 at 352, Re 5000 at
+/// n = 128 at 566 (its slowest mode decays over ≈ 80 time units); Re 10 000 does not settle
+/// at n = 128 and runs to t = 800.
 fn default_t_end(re: f64) -> f64 {
-    if re > 2000.0 {
-        800.0
-    } else if re > 500.0 {
-        150.0
-    } else {
-        40.0
-    }
+    (0.2 * re).clamp(40.0, 800.0)
 }
 
 fn config(a: &Args) -> CavityConfig {
