@@ -37,8 +37,8 @@ struct Args {
     /// Fluid particles per side.
     #[arg(long, default_value_t = 50)]
     n: usize,
-    /// End time (the run stops earlier once steady); default Re/5 within [40, 800] (the cavity
-    /// settles at t ≈ Re/10: Re 400 at 37.5, Re 1000 at ≈ 85, Re 5000 at n = 128 at ≈ 566).
+    /// End time (the run stops earlier once steady); default Re/5 within [40, 800], about
+    /// twice the time the cavity takes to settle.
     #[arg(long)]
     t_end: Option<f64>,
     /// Pressure scheme: non-incremental, incremental, rotational.
