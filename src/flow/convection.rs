@@ -192,6 +192,8 @@ fn pair_row<const D: usize>(
 pub struct Convection<const D: usize> {
     prev: Option<(Vec<[f64; D]>, f64)>,
     grad: Vec<[[f64; D]; D]>,
+    /// The buffer the next `Nⁿ` is written into (the one before last, recycled).
+    spare: Vec<[f64; D]>,
 }
 
 impl<const D: usize> Convection<D> {
@@ -200,6 +202,7 @@ impl<const D: usize> Convection<D> {
         Convection {
             prev: None,
             grad: Vec::new(),
+            spare: Vec::new(),
         }
     }
 
@@ -248,7 +251,10 @@ impl<const D: usize> Convection<D> {
             }
         }
         let grad = &self.grad;
-        let mut conv: Vec<[f64; D]> = vec![[0.0; D]; n];
+        // `Nⁿ` goes into the buffer of `Nⁿ⁻²`: no allocation once both have grown
+        let mut conv = std::mem::take(&mut self.spare);
+        conv.clear();
+        conv.resize(n, [0.0; D]);
         conv.par_iter_mut()
             .with_min_len(256)
             .enumerate()
@@ -281,6 +287,8 @@ impl<const D: usize> Convection<D> {
                 }
             }
         }
-        self.prev = Some((conv, dt));
+        if let Some((old, _)) = self.prev.replace((conv, dt)) {
+            self.spare = old;
+        }
     }
 }
