@@ -9,11 +9,14 @@
 //! values that cannot be restored (Re 400 `v(0.9063)`, Re 3200 `u(0.4531)`) are left out of
 //! their tables ([`GHIA_OMITTED`]), which then have 16 rows instead of 17.
 //!
-//! An extrapolated reference at the same points ([`extrapolated`]): the steady cavity by
-//! second-order finite differences of the stream-function/vorticity equations on 128²…1024²
-//! grids, Richardson-extrapolated, accurate to about 10⁻⁶ (validated against Botella & Peyret
-//! 1998 at Re 1000). Ghia's interior values are 0.25–1 % RMS off it, so an error against Ghia
-//! below about 0.5 % cannot rank a method: report both.
+//! An extrapolated reference at the same points ([`extrapolated`], [`EXTRAPOLATED_RE`]): the
+//! steady cavity by second-order finite differences of the stream-function/vorticity equations,
+//! Richardson-extrapolated — Re 100 and 1000 from 256²…1024² grids, accurate to about 10⁻⁶
+//! (validated against Botella & Peyret 1998 at Re 1000); Re 400, 3200 and 5000 from 128²…512²
+//! grids by `tools/fd_cavity.py` (the same method), accurate to 10⁻⁵, 3.4·10⁻⁴ and 7.8·10⁻⁴
+//! (the files' `uncertainty` column). Ghia's interior values are 0.25–1 % RMS off it, so an error against
+//! Ghia below about 0.5 % cannot rank a method: report both. These tables have every one of
+//! Ghia's 17 positions, also the two whose printed values are left out of Ghia's tables.
 //!
 //! The lid-driven cube at Re 1000 ([`albensoeder_cube`]): Albensoeder & Kuhlmann (2005)'s
 //! centre-line tables, spectrally accurate.
@@ -72,6 +75,15 @@ const EX100_U: &str = include_str!("../data/extrapolated_re100_u_vertical.csv");
 const EX100_V: &str = include_str!("../data/extrapolated_re100_v_horizontal.csv");
 const EX1000_U: &str = include_str!("../data/extrapolated_re1000_u_vertical.csv");
 const EX1000_V: &str = include_str!("../data/extrapolated_re1000_v_horizontal.csv");
+const EX400_U: &str = include_str!("../data/extrapolated_re400_u_vertical.csv");
+const EX400_V: &str = include_str!("../data/extrapolated_re400_v_horizontal.csv");
+const EX3200_U: &str = include_str!("../data/extrapolated_re3200_u_vertical.csv");
+const EX3200_V: &str = include_str!("../data/extrapolated_re3200_v_horizontal.csv");
+const EX5000_U: &str = include_str!("../data/extrapolated_re5000_u_vertical.csv");
+const EX5000_V: &str = include_str!("../data/extrapolated_re5000_v_horizontal.csv");
+
+/// The Reynolds numbers with an extrapolated reference ([`extrapolated`]).
+pub const EXTRAPOLATED_RE: [u32; 5] = [100, 400, 1000, 3200, 5000];
 
 /// Parses the first two columns of a CSV with `#` comments and one header line (further columns,
 /// such as the extrapolated reference's `uncertainty`, are ignored).
@@ -105,11 +117,15 @@ pub fn ghia(re: u32) -> Option<CentrelineTable> {
     Some(table(re, u, v))
 }
 
-/// The extrapolated reference for `re` = 100 or 1000, at Ghia's printed positions.
+/// The extrapolated reference for `re` (one of [`EXTRAPOLATED_RE`]), at Ghia's printed
+/// positions (all 17 of each table).
 pub fn extrapolated(re: u32) -> Option<CentrelineTable> {
     let (u, v) = match re {
         100 => (EX100_U, EX100_V),
+        400 => (EX400_U, EX400_V),
         1000 => (EX1000_U, EX1000_V),
+        3200 => (EX3200_U, EX3200_V),
+        5000 => (EX5000_U, EX5000_V),
         _ => return None,
     };
     Some(table(re, u, v))
@@ -134,6 +150,15 @@ const AK1000_V: &str = include_str!("../data/albensoeder2005_cube_re1000_v_horiz
 /// Ghia et al.'s positions. See `data/SOURCES.md`.
 pub fn albensoeder_cube(re: u32) -> Option<CentrelineTable> {
     (re == 1000).then(|| table(re, AK1000_U, AK1000_V))
+}
+
+/// The key of the embedded tables for a run at Reynolds number `re`: `re` itself when it is a
+/// whole number, `None` otherwise (a table at a nearby Reynolds number is no reference for it).
+pub fn table_key(re: f64) -> Option<u32> {
+    let r = re.round();
+    let whole =
+        re.is_finite() && r >= 1.0 && r <= f64::from(u32::MAX) && (re - r).abs() <= 1e-9 * r;
+    whole.then_some(r as u32)
 }
 
 /// Reynolds numbers with embedded tables of Ghia et al.

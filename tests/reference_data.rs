@@ -337,37 +337,92 @@ fn parser_reports_bad_lines() {
     assert!(e.contains("line 2") && e.contains("missing"), "{e}");
 }
 
-/// The extrapolated reference sits at Ghia's printed positions, carries the same wall values, and
-/// Ghia's interior values differ from it by the RMS amounts its source note states
-/// (Re 100: 0.25 % u, 0.51 % v; Re 1000: 0.37 % u, 1.0 % v, to the printed two digits).
+/// The extrapolated reference sits at Ghia's printed positions (all 17: also the rows left out
+/// of Ghia's tables), carries the same wall values, and Ghia's interior values differ from it by
+/// the RMS amounts its source note states (Re 100: 0.25 % u, 0.51 % v; Re 400: 0.14 %, 0.33 %;
+/// Re 1000: 0.37 %, 1.0 %; Re 3200: 1.5 %, 2.1 %; Re 5000: 1.1 %, 1.3 %, to the printed two
+/// digits).
 #[test]
 fn extrapolated_reference_matches_its_source_note() {
-    use gpm::reference::extrapolated;
-    let stated = [(100, 0.0025, 0.0051), (1000, 0.0037, 0.010)];
+    use gpm::reference::{extrapolated, EXTRAPOLATED_RE, GHIA_OMITTED};
+    let stated = [
+        (100, 0.0025, 0.0051),
+        (400, 0.0014, 0.0033),
+        (1000, 0.0037, 0.010),
+        (3200, 0.015, 0.021),
+        (5000, 0.011, 0.013),
+    ];
+    assert_eq!(stated.map(|s| s.0), EXTRAPOLATED_RE);
     for (re, su, sv) in stated {
         let g = ghia(re).unwrap();
         let e = extrapolated(re).expect("embedded extrapolated table");
-        for (a, b) in [
-            (&g.u_vertical, &e.u_vertical),
-            (&g.v_horizontal, &e.v_horizontal),
+        let mut gu = Vec::new();
+        let mut gv = Vec::new();
+        for (which, a, b, values) in [
+            ('u', &g.u_vertical, &e.u_vertical, &mut gu),
+            ('v', &g.v_horizontal, &e.v_horizontal, &mut gv),
         ] {
-            assert_eq!(a.len(), b.len());
-            for (p, q) in a.iter().zip(b.iter()) {
-                assert_eq!(p.0, q.0, "Re {re}: positions differ");
-                if p.0 == 0.0 || p.0 == 1.0 {
-                    assert_eq!(p.1, q.1, "Re {re}: wall value at {}", p.0);
+            assert_eq!(
+                b.len(),
+                17,
+                "Re {re} {which}: every one of Ghia's positions"
+            );
+            // Ghia's rows in order, the omitted one skipped
+            let mut rows = a.iter().peekable();
+            for q in b.iter() {
+                match rows.peek() {
+                    Some(p) if p.0 == q.0 => {
+                        if p.0 == 0.0 || p.0 == 1.0 {
+                            assert_eq!(p.1, q.1, "Re {re}: wall value at {}", p.0);
+                        }
+                        values.push(Some(p.1));
+                        rows.next();
+                    }
+                    _ => {
+                        let omitted = GHIA_OMITTED
+                            .iter()
+                            .any(|o| o.0 == re && o.1 == which && o.2 == q.0);
+                        assert!(omitted, "Re {re} {which}: {} is not one of Ghia's", q.0);
+                        values.push(None);
+                    }
                 }
             }
+            assert!(rows.next().is_none(), "Re {re} {which}: positions differ");
         }
-        let gu: Vec<f64> = g.u_vertical.iter().map(|p| p.1).collect();
-        let gv: Vec<f64> = g.v_horizontal.iter().map(|p| p.1).collect();
-        let (ru, _) = rms_max(&e.u_vertical, &gu);
-        let (rv, _) = rms_max(&e.v_horizontal, &gv);
+        let rms = |t: &[(f64, f64)], g: &[Option<f64>]| {
+            let (t, g): (Vec<(f64, f64)>, Vec<f64>) = t
+                .iter()
+                .zip(g)
+                .filter_map(|(p, v)| v.map(|v| (*p, v)))
+                .unzip();
+            rms_max(&t, &g).0
+        };
+        let (ru, rv) = (rms(&e.u_vertical, &gu), rms(&e.v_horizontal, &gv));
         // the note rounds to two significant digits
         assert!((ru - su).abs() < 0.06 * su, "Re {re}: u RMS {ru}");
         assert!((rv - sv).abs() < 0.06 * sv, "Re {re}: v RMS {rv}");
     }
-    assert!(extrapolated(400).is_none());
+    assert!(extrapolated(7500).is_none());
+}
+
+/// A run's Reynolds number picks a table only when it is a whole number.
+#[test]
+fn tables_are_keyed_by_whole_reynolds_numbers() {
+    use gpm::reference::table_key;
+    assert_eq!(table_key(1000.0), Some(1000));
+    assert_eq!(table_key(400.0), Some(400));
+    for re in [
+        999.7,
+        1000.4,
+        0.0,
+        0.4,
+        -100.0,
+        f64::NAN,
+        f64::INFINITY,
+        1e12,
+    ] {
+        assert_eq!(table_key(re), None, "{re}");
+    }
 }
 
 /// Albensoeder & Kuhlmann's cube (Re 1000), mapped to gpm's frame: the wall values of the
