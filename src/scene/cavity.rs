@@ -18,7 +18,7 @@ use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Shifting, Simulation};
 use crate::geometry::lattice;
 use crate::particles::{Particles, Role};
-use crate::reference::{extrapolated, ghia, rms_max, CentrelineTable};
+use crate::reference::{extrapolated, ghia, rms_max, table_key, CentrelineTable};
 use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
@@ -925,7 +925,9 @@ impl Scene<2> for Cavity {
     }
 
     fn start(cfg: &CavityConfig, _sim: &Simulation<2, Walls<2>>) -> CavityState {
-        let table = ghia(cfg.re.round() as u32);
+        // the extrapolated reference has all of Ghia's positions, also the ones whose printed
+        // values are left out of Ghia's tables
+        let table = table_key(cfg.re).and_then(|re| extrapolated(re).or_else(|| ghia(re)));
         CavityState::new(cfg, &cfg.scene.steady, table.as_ref())
     }
 
@@ -945,9 +947,10 @@ impl Scene<2> for Cavity {
         started: Instant,
     ) -> CavityResult {
         let mut res = s.finish(cfg, &cfg.scene.steady, sim, started);
-        let re = cfg.re.round() as u32;
-        res.ghia = ghia_errors(re, &res.ys, &res.u, &res.xs, &res.v);
-        res.reference = reference_errors(re, &res.ys, &res.u, &res.xs, &res.v);
+        if let Some(re) = table_key(cfg.re) {
+            res.ghia = ghia_errors(re, &res.ys, &res.u, &res.xs, &res.v);
+            res.reference = reference_errors(re, &res.ys, &res.u, &res.xs, &res.v);
+        }
         res
     }
 
@@ -1076,16 +1079,16 @@ pub fn write_plots(
     res: &CavityResult,
     sim: &Simulation<2, Walls<2>>,
 ) -> Result<(), crate::plot::PlotError> {
-    let re = res.re.round() as u32;
+    let re = table_key(res.re);
     let mut refs = Vec::new();
-    if let Some(t) = ghia(re) {
+    if let Some(t) = re.and_then(ghia) {
         refs.push(ReferenceCurve {
             label: "Ghia et al. 1982",
             table: t,
             points: true,
         });
     }
-    if let Some(t) = extrapolated(re) {
+    if let Some(t) = re.and_then(extrapolated) {
         refs.push(ReferenceCurve {
             label: "extrapolated reference",
             table: t,

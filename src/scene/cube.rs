@@ -18,7 +18,7 @@ use super::{FlowConfig, Scene, SceneConfig, SceneParams, Table};
 use crate::boundary::Walls;
 use crate::error::{Error, InputError};
 use crate::flow::{FlowReport, Simulation};
-use crate::reference::albensoeder_cube;
+use crate::reference::{albensoeder_cube, table_key};
 use crate::sampling::Sampler;
 use serde::{Deserialize, Serialize};
 use std::ops::ControlFlow;
@@ -153,7 +153,7 @@ impl Scene<3> for Cube {
     }
 
     fn start(cfg: &CubeConfig, _sim: &Simulation<3, Walls<3>>) -> CavityState {
-        let table = albensoeder_cube(cfg.re.round() as u32);
+        let table = table_key(cfg.re).and_then(albensoeder_cube);
         CavityState::new(cfg, &cfg.scene.steady, table.as_ref())
     }
 
@@ -174,7 +174,8 @@ impl Scene<3> for Cube {
     ) -> CubeResult {
         let symmetry = symmetry_error(sim, cfg.scene.lid);
         let mut res = s.finish(cfg, &cfg.scene.steady, sim, started);
-        res.reference = albensoeder_cube(cfg.re.round() as u32)
+        res.reference = table_key(cfg.re)
+            .and_then(albensoeder_cube)
             .map(|t| profile_errors(&t, &res.ys, &res.u, &res.xs, &res.v));
         CubeResult {
             profiles: res,
@@ -222,16 +223,16 @@ pub fn write_plots(
 ) -> Result<(), crate::plot::PlotError> {
     use super::cavity::{write_profile_plot, ReferenceCurve};
     let r = &res.profiles;
-    let re = r.re.round() as u32;
+    let re = table_key(r.re);
     let mut refs = Vec::new();
-    if let Some(t) = albensoeder_cube(re) {
+    if let Some(t) = re.and_then(albensoeder_cube) {
         refs.push(ReferenceCurve {
             label: "Albensoeder & Kuhlmann 2005 (cube)",
             table: t,
             points: true,
         });
     }
-    if let Some(t) = crate::reference::ghia(re) {
+    if let Some(t) = re.and_then(crate::reference::ghia) {
         refs.push(ReferenceCurve {
             label: "Ghia et al. 1982 (square, 2D)",
             table: t,
