@@ -598,32 +598,30 @@ def build_parser():
                                  epilog="Run '%(prog)s COMMAND -h' for each command's options.")
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    solving = argparse.ArgumentParser(add_help=False)
+    solving.add_argument("--re", type=positive_float, required=True, help="Reynolds number (> 0)")
+    solving.add_argument("--tol", type=positive_float, default=DEFAULT_TOL,
+                         help="Newton stopping test ||F||/||F_lid|| < TOL (default %(default)g)")
     sub = ap.add_subparsers(dest="command", required=True)
 
-    s = sub.add_parser("solve", parents=[common], help="solve one grid, print JSON",
+    s = sub.add_parser("solve", parents=[common, solving], help="solve one grid, print JSON",
                        description="Solve on one grid; print JSON with psi_min, the centre-line values at "
                                    "Ghia's positions, convergence, residual and seconds.")
-    s.add_argument("--re", type=positive_float, required=True, help="Reynolds number (> 0)")
     s.add_argument("--n", type=grid_size, required=True, help="intervals per side (even, >= 8)")
     s.add_argument("--init", metavar="FILE.npz", help="start from this solution (from --save), interpolated")
     s.add_argument("--save", metavar="FILE.npz", help="save the solution (usable as --init)")
-    s.add_argument("--tol", type=positive_float, default=DEFAULT_TOL,
-                   help="Newton stopping test ||F||/||F_lid|| < TOL (default %(default)g)")
     s.set_defaults(func=cmd_solve)
 
-    r = sub.add_parser("reference", parents=[common], help="solve several grids and Richardson-extrapolate",
+    r = sub.add_parser("reference", parents=[common, solving], help="solve several grids and Richardson-extrapolate",
                        description="Solve the grids in order (each from the previous one), extrapolate with "
                                    "h^2 and h^3 removed through the three finest, and write "
                                    "OUT/extrapolated_re{RE}_{u_vertical,v_horizontal}.csv and "
                                    "OUT/fd_re{RE}.json.")
-    r.add_argument("--re", type=positive_float, required=True, help="Reynolds number (> 0)")
     r.add_argument("--grids", type=grid_size, nargs="+", default=[128, 256, 512], metavar="N",
                    help="increasing grid sizes, at least three (default: %(default)s)")
     r.add_argument("--out", required=True, help="output directory (created if missing)")
     r.add_argument("--save-dir", metavar="DIR",
                    help="also save each grid's solution as fd_re{RE}_n{N}.npz here")
-    r.add_argument("--tol", type=positive_float, default=DEFAULT_TOL,
-                   help="Newton stopping test ||F||/||F_lid|| < TOL (default %(default)g)")
     r.set_defaults(func=cmd_reference)
 
     c = sub.add_parser("compare", parents=[common], help="differences between two profile sets",
