@@ -14,9 +14,10 @@
 //! Richardson-extrapolated — Re 100 and 1000 from 256²…1024² grids, accurate to about 10⁻⁶
 //! (validated against Botella & Peyret 1998 at Re 1000); Re 400, 3200 and 5000 from 128²…512²
 //! grids by `tools/fd_cavity.py` (the same method), accurate to 10⁻⁵, 3.4·10⁻⁴ and 7.8·10⁻⁴
-//! (the files' `uncertainty` column). Ghia's interior values are 0.25–1 % RMS off it, so an error against
-//! Ghia below about 0.5 % cannot rank a method: report both. These tables have every one of
-//! Ghia's 17 positions, also the two whose printed values are left out of Ghia's tables.
+//! (the files' `uncertainty` column). Ghia's interior values are 0.14–1 % RMS off them up to
+//! Re 1000 and 1.1–2.1 % at Re 3200 and 5000, so an error against Ghia of that size cannot
+//! rank a method: report both. These tables have every one of Ghia's 17 positions, also the
+//! two whose printed values are left out of Ghia's tables.
 //!
 //! The lid-driven cube at Re 1000 ([`albensoeder_cube`]): Albensoeder & Kuhlmann (2005)'s
 //! centre-line tables, spectrally accurate.
