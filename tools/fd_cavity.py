@@ -568,6 +568,11 @@ def cmd_compare(args):
                         "rms_interior_pct": float(100 * np.sqrt(np.mean(diff[interior] ** 2))),
                         "diff": [[float(p), float(e)] for p, e in zip(common, diff)]}
     print(json.dumps(result, indent=1))
+    if args.max_diff is not None:
+        worst = max(result[stem]["max_abs_diff"] for _, stem, _ in PROFILES)
+        if worst >= args.max_diff:
+            raise ToolError(f"largest difference {worst:.2e} is not below --max-diff {args.max_diff:g}")
+        print(f"largest difference {worst:.2e} < --max-diff {args.max_diff:g}", file=sys.stderr)
 
 
 def positive_float(s):
@@ -635,6 +640,8 @@ def build_parser():
     c.add_argument("--re", type=positive_float, required=True, help="Reynolds number (selects file names)")
     c.add_argument("--ref", default="extrapolated", help="reference profiles (default: %(default)s)")
     c.add_argument("--data", default=str(DEFAULT_DATA), help="data directory (default: %(default)s)")
+    c.add_argument("--max-diff", type=positive_float, metavar="TOL",
+                   help="exit with an error unless every |difference| is below TOL")
     c.set_defaults(func=cmd_compare)
     return ap
 
