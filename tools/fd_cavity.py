@@ -15,6 +15,9 @@ Boundary conditions
     psi_adj the value at the first interior node along the wall normal and U_t the tangential
     wall speed (U on the lid, 0 elsewhere).  The four corner vorticities are not used by any
     interior stencil and are fixed to 0.
+    With --lid-ramp D > 0 the lid moves with U S(x/D) S((1-x)/D), S(t) = 6t^5 - 15t^4 + 10t^3 on
+    t clamped to [0, 1]: a lid whose speed falls smoothly to zero at both corners (D = 0.5: the
+    regularised cavity), the profile of gpm's `lid_ramp` (`--lid-ramp` of the cavity example).
 
 Discretisation
     Uniform grid with n intervals per side (n even, so that x = 0.5 and y = 0.5 are grid lines),
@@ -98,12 +101,27 @@ def re_tag(re):
     return str(int(re)) if float(re).is_integer() else repr(float(re))
 
 
+def smooth_step(t):
+    """S(t) = 6t^5 - 15t^4 + 10t^3 on t clamped to [0, 1]."""
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * t * (10.0 + t * (6.0 * t - 15.0))
+
+
+def lid_profile(x, ramp):
+    """The lid's speed over U at x: 1, or S(x/ramp) S((1-x)/ramp) for ramp > 0."""
+    x = np.asarray(x, dtype=float)
+    if ramp <= 0.0:
+        return np.ones_like(x)
+    return smooth_step(x / ramp) * smooth_step((1.0 - x) / ramp)
+
+
 class Cavity:
     """Discrete stream-function/vorticity system on an n x n grid (see the module docstring)."""
 
-    def __init__(self, n, U=1.0):
-        """Grid with n intervals per side (n even) and lid speed U; assembles the linear part."""
-        self.n, self.U = n, float(U)
+    def __init__(self, n, U=1.0, ramp=0.0):
+        """Grid with n intervals per side (n even), lid speed U and lid ramp width (0: the
+        classic lid); assembles the linear part."""
+        self.n, self.U, self.ramp = n, float(U), float(ramp)
         self.h = 1.0 / n
         self.m = n + 1
         self.N = self.m * self.m
@@ -146,7 +164,7 @@ class Cavity:
         walls = ((idx[r, 0], idx[r, 1], 0.0),          # bottom
                  (idx[0, r], idx[1, r], 0.0),          # left
                  (idx[n, r], idx[n - 1, r], 0.0),      # right
-                 (idx[r, n], idx[r, n - 1], self.U))   # lid
+                 (idx[r, n], idx[r, n - 1], self.U * lid_profile(r * h, self.ramp)))   # lid
         for w, a, ut in walls:
             add(N + w, N + w, h * h)
             add(N + w, a, 2.0)
@@ -262,9 +280,13 @@ class Cavity:
         u = np.zeros(n + 1)
         v = np.zeros(n + 1)
         u[1:n] = (psi[c, 2:] - psi[c, :-2]) / (2 * h)
-        u[n] = self.U
+        u[n] = self.lid_centre()
         v[1:n] = -(psi[2:, c] - psi[:-2, c]) / (2 * h)
         return u, v
+
+    def lid_centre(self):
+        """The lid's speed at x = 0.5."""
+        return float(self.U * lid_profile(0.5, self.ramp))
 
     def sample(self, x):
         """u at GHIA_U_Y on x = 0.5 and v at GHIA_V_X on y = 0.5 (walls: boundary values exactly)."""
@@ -272,7 +294,7 @@ class Cavity:
         nodes = np.linspace(0.0, 1.0, self.m)
         us = cubic_lagrange(nodes, u, np.array(GHIA_U_Y))
         vs = cubic_lagrange(nodes, v, np.array(GHIA_V_X))
-        for pos, val, wall in ((GHIA_U_Y, us, {0.0: 0.0, 1.0: self.U}), (GHIA_V_X, vs, {0.0: 0.0, 1.0: 0.0})):
+        for pos, val, wall in ((GHIA_U_Y, us, {0.0: 0.0, 1.0: self.lid_centre()}), (GHIA_V_X, vs, {0.0: 0.0, 1.0: 0.0})):
             for k, p in enumerate(pos):
                 if p in wall:
                     val[k] = wall[p]
@@ -326,14 +348,15 @@ def continuation(cav, re, tol):
     return x, stages
 
 
-def solve_grid(n, re, tol=DEFAULT_TOL, init=None):
+def solve_grid(n, re, tol=DEFAULT_TOL, init=None, ramp=0.0):
     """Solve on n intervals at Reynolds number re.
 
     init: None, or (psi, omega) arrays of another solution to interpolate as the starting guess.
     Newton from that guess (or from Stokes); if it fails, continuation from Stokes.
+    ramp: the lid ramp width (0: the classic lid).
     Returns (cav, x, result) where result is a JSON-ready dict; raises ToolError on failure."""
     t0 = time.time()
-    cav = Cavity(n)
+    cav = Cavity(n, ramp=ramp)
     start = "interpolated" if init is not None else "Stokes"
     x0 = cav.from_coarse(*init) if init is not None else cav.stokes()
     x, status, rel, its = cav.newton(x0, re, tol, maxit=25)
@@ -346,7 +369,7 @@ def solve_grid(n, re, tol=DEFAULT_TOL, init=None):
     seconds = time.time() - t0
     node, refined = cav.psi_min(x)
     us, vs = cav.sample(x)
-    result = {"re": re, "n": n, "converged": True, "residual": cav.relative_residual(x, re), "tol": tol,
+    result = {"re": re, "n": n, "lid_ramp": ramp, "converged": True, "residual": cav.relative_residual(x, re), "tol": tol,
               "newton": stages, "psi_min": {"node": node, "refined": refined},
               "u_vertical": {"y": list(GHIA_U_Y), "u": us.tolist()},
               "v_horizontal": {"x": list(GHIA_V_X), "v": vs.tolist()},
@@ -419,9 +442,9 @@ def load_init(path):
 
 
 def save_solution(path, cav, x, re):
-    """Write the solution to an .npz (n, re, psi, om), usable as --init."""
+    """Write the solution to an .npz (n, re, lid_ramp, psi, om), usable as --init."""
     psi, om = cav.fields(x)
-    np.savez(path, n=cav.n, re=re, psi=psi, om=om)
+    np.savez(path, n=cav.n, re=re, lid_ramp=cav.ramp, psi=psi, om=om)
 
 
 def write_reference_csv(path, re, quantity, positions, values, uncertainty, method_line):
@@ -440,7 +463,7 @@ def write_reference_csv(path, re, quantity, positions, values, uncertainty, meth
 def cmd_solve(args):
     """solve: one grid, JSON on stdout."""
     init = load_init(args.init) if args.init else None
-    cav, x, result = solve_grid(args.n, args.re, args.tol, init)
+    cav, x, result = solve_grid(args.n, args.re, args.tol, init, args.lid_ramp)
     if args.save:
         save_solution(args.save, cav, x, args.re)
     print(json.dumps(result, indent=1))
@@ -457,7 +480,7 @@ def cmd_reference(args):
     per_grid, init = [], None
     for n in grids:
         log(f"Re={args.re:g}: solving n={n}")
-        cav, x, res = solve_grid(n, args.re, args.tol, init)
+        cav, x, res = solve_grid(n, args.re, args.tol, init, args.lid_ramp)
         log(f"Re={args.re:g}: n={n} done in {res['seconds']:.1f} s, "
             f"psi_min = {res['psi_min']['refined']['value']:.7f}")
         per_grid.append(res)
@@ -468,12 +491,13 @@ def cmd_reference(args):
     h = np.array([1.0 / n for n in grids])
     g3, g2 = grids[-3:], grids[-2:]
     date = datetime.date.today().isoformat()
-    method = (f"# 2nd-order FD stream-function/vorticity (Thom wall vorticity), Newton "
+    lid = "" if args.lid_ramp == 0 else f", lid ramp {args.lid_ramp:g} (U S(x/D) S((1-x)/D))"
+    method = (f"# 2nd-order FD stream-function/vorticity (Thom wall vorticity){lid}, Newton "
               f"(|F|/|F_lid| < {args.tol:g}), grids N={','.join(map(str, grids))}; value = Richardson "
               f"extrapolation removing h^2 and h^3 terms (N={','.join(map(str, g3))}); uncertainty = "
               f"max({UNCERTAINTY_FACTOR:g}*max_interior|value-R2({g2[0]},{g2[1]})|, 1e-6) per profile, "
               f"R2 = h^2-only extrapolation; generated {date} by fd_cavity.py reference")
-    summary = {"re": args.re, "grids": grids, "date": date, "tol": args.tol,
+    summary = {"re": args.re, "lid_ramp": args.lid_ramp, "grids": grids, "date": date, "tol": args.tol,
                "method": method[2:], "per_grid": per_grid}
     for quantity, stem, coord in PROFILES:
         positions = np.array(per_grid[0][stem][coord])
@@ -597,6 +621,17 @@ def grid_size(s):
     return v
 
 
+def lid_ramp(s):
+    """argparse type: a lid ramp width in [0, 0.5]."""
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"lid ramp must be a number, got {s!r}") from None
+    if not 0.0 <= v <= 0.5:
+        raise argparse.ArgumentTypeError(f"lid ramp must be within [0, 0.5], got {s}")
+    return v
+
+
 def build_parser():
     """The command-line interface."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -607,6 +642,9 @@ def build_parser():
     solving.add_argument("--re", type=positive_float, required=True, help="Reynolds number (> 0)")
     solving.add_argument("--tol", type=positive_float, default=DEFAULT_TOL,
                          help="Newton stopping test ||F||/||F_lid|| < TOL (default %(default)g)")
+    solving.add_argument("--lid-ramp", type=lid_ramp, default=0.0, metavar="D",
+                         help="the lid's speed falls smoothly to zero within D of each corner "
+                              "(0 <= D <= 0.5; default 0: the classic lid; 0.5: the regularised cavity)")
     sub = ap.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("solve", parents=[common, solving], help="solve one grid, print JSON",
