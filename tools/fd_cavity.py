@@ -599,37 +599,28 @@ def cmd_compare(args):
         print(f"largest difference {worst:.2e} < --max-diff {args.max_diff:g}", file=sys.stderr)
 
 
-def positive_float(s):
-    """argparse type: a finite float > 0."""
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {s!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {s}")
-    return v
+def argument_type(convert, not_parsed, ok, not_ok):
+    """An argparse type: convert(s), then ok(value); the messages are formats of s."""
+    def parse(s):
+        try:
+            v = convert(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(not_parsed.format(s=s)) from None
+        if not ok(v):
+            raise argparse.ArgumentTypeError(not_ok.format(s=s))
+        return v
+    return parse
 
 
-def grid_size(s):
-    """argparse type: an even integer >= 8."""
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {s!r}") from None
-    if v < 8 or v % 2:
-        raise argparse.ArgumentTypeError(f"grid size must be an even integer >= 8, got {s}")
-    return v
-
-
-def lid_ramp(s):
-    """argparse type: a lid ramp width in [0, 0.5]."""
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"lid ramp must be a number, got {s!r}") from None
-    if not 0.0 <= v <= 0.5:
-        raise argparse.ArgumentTypeError(f"lid ramp must be within [0, 0.5], got {s}")
-    return v
+# a finite float > 0
+positive_float = argument_type(float, "not a number: {s!r}", lambda v: math.isfinite(v) and v > 0,
+                               "must be finite and > 0, got {s}")
+# an even integer >= 8
+grid_size = argument_type(int, "not an integer: {s!r}", lambda v: v >= 8 and v % 2 == 0,
+                          "grid size must be an even integer >= 8, got {s}")
+# a lid ramp width in [0, 0.5]
+lid_ramp = argument_type(float, "lid ramp must be a number, got {s!r}", lambda v: 0.0 <= v <= 0.5,
+                         "lid ramp must be within [0, 0.5], got {s}")
 
 
 def build_parser():
