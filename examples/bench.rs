@@ -370,6 +370,13 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
 
 fn child(spec: &str) -> Result<()> {
     let c: Case = serde_json::from_str(spec).context("child spec")?;
+    // (any other name would silently run the fixed frame)
+    if !matches!(c.frame.as_str(), "fixed" | "moving") {
+        bail!(
+            "child spec: frame {:?} is neither \"fixed\" nor \"moving\"",
+            c.frame
+        );
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(c.threads)
         .build()
