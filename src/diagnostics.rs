@@ -200,8 +200,9 @@ pub fn connectivity<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Comp
 #[derive(Debug, Default)]
 pub struct ConnectivityScratch {
     parent: Vec<std::sync::atomic::AtomicU32>,
-    flags: Vec<(bool, bool)>,
+    has_nb: Vec<bool>,
     root_to_comp: Vec<u32>,
+    samples: Vec<u32>,
 }
 
 impl Clone for ConnectivityScratch {
@@ -211,8 +212,24 @@ impl Clone for ConnectivityScratch {
     }
 }
 
+/// Pairs per row linked in the sampling round of [`connectivity_into`].
+const SAMPLED_LINKS: usize = 2;
+/// Particles whose roots pick the largest component after the sampling round.
+const ROOT_SAMPLES: usize = 1024;
+
 /// [`connectivity`] into `out`, its vectors and those of `scratch` reused (a moving step's
 /// check allocates nothing once they have grown).
+///
+/// A concurrent union-find in the manner of Afforest (Sutton, Ben-Nun & Barak 2018): a first
+/// round links each fluid particle to its first two neighbours only; the root most of 1 024
+/// evenly spaced particles reach is taken as the largest component's; a second round links
+/// every pair of each particle *not* in that component. Every pair is accounted for: a pair
+/// whose two ends were in that component when they were visited is already connected, any other
+/// is linked from the end that was not. The components are those of linking every pair (the
+/// graph search of `tests/stability_props.rs` checks them), at a few links per particle instead
+/// of one per pair when one component holds most particles. Anchoring is read from the rows of
+/// the particles that hold the Dirichlet values (their pairs are the fluid rows' Dirichlet pairs
+/// seen from the other end: the list holds both directions of every pair).
 pub fn connectivity_into<const D: usize>(
     nl: &NeighborList<D>,
     role: &[Role],
@@ -221,9 +238,9 @@ pub fn connectivity_into<const D: usize>(
 ) {
     use std::sync::atomic::{AtomicU32, Ordering};
     let n = nl.len();
-    // a concurrent union-find (rows in parallel): a root is only ever linked under a smaller
-    // root, so every component's root is its smallest index whatever the order of the unions
-    // — the labels below are those of a sequential run
+    // a root is only ever linked under a smaller root, so every component's root is its
+    // smallest index whatever the order of the unions — the labels below are those of a
+    // sequential run
     let parent = &mut scratch.parent;
     parent.truncate(n);
     parent
@@ -263,37 +280,66 @@ pub fn connectivity_into<const D: usize>(
             }
         }
     }
-    // (touches a Dirichlet particle, has a neighbour) per row
-    let flags = &mut scratch.flags;
-    flags.resize(n, (false, false));
-    flags
+    // the fluid particles a row's pairs join row i to (ghosts stand for their sources; pairs
+    // with i's own images join nothing), and whether it has a pair other than those
+    let links = |i: usize| {
+        nl.row(i).filter_map(move |k| {
+            let j = nl.indices()[k] as usize;
+            alias(role, j).filter(|&s| s != i)
+        })
+    };
+    let has_nb = &mut scratch.has_nb;
+    has_nb.resize(n, false);
+    // round 1: the first links of each fluid row
+    has_nb
         .par_iter_mut()
         .with_min_len(256)
         .enumerate()
-        .for_each(|(i, flag)| {
-            let (mut touches, mut has_nb) = (false, false);
+        .for_each(|(i, has)| {
+            *has = false;
             if !role[i].is_fluid() {
-                *flag = (touches, has_nb);
                 return;
             }
-            for k in nl.row(i) {
+            // a pair with a Dirichlet particle counts as a neighbour
+            *has = nl.row(i).any(|k| {
                 let j = nl.indices()[k] as usize;
-                match alias(role, j) {
-                    None => {
-                        touches = true;
-                        has_nb = true;
-                    }
-                    Some(s) if s != i => {
-                        has_nb = true;
-                        // each edge once (the list holds both directions, or a ghost of s)
-                        if s > i {
-                            union(parent, i as u32, s as u32);
-                        }
-                    }
-                    Some(_) => {}
-                }
+                alias(role, j) != Some(i)
+            });
+            for s in links(i).take(SAMPLED_LINKS) {
+                union(parent, i as u32, s as u32);
             }
-            *flag = (touches, has_nb);
+        });
+    // the root most sampled fluid particles reach (ties: the smallest)
+    let samples = &mut scratch.samples;
+    samples.clear();
+    let stride = n.div_ceil(ROOT_SAMPLES).max(1);
+    samples.extend(
+        (0..n)
+            .step_by(stride)
+            .filter(|&i| role[i].is_fluid())
+            .map(|i| find(parent, i as u32)),
+    );
+    samples.sort_unstable();
+    let (mut big, mut best, mut run) = (u32::MAX, 0usize, 0usize);
+    for (a, &r) in samples.iter().enumerate() {
+        run = if a > 0 && samples[a - 1] == r {
+            run + 1
+        } else {
+            1
+        };
+        if run > best {
+            (big, best) = (r, run);
+        }
+    }
+    // round 2: every link of the fluid rows outside that component
+    (0..n)
+        .into_par_iter()
+        .with_min_len(256)
+        .filter(|&i| role[i].is_fluid() && find(parent, i as u32) != big)
+        .for_each(|i| {
+            for s in links(i) {
+                union(parent, i as u32, s as u32);
+            }
         });
     // sequential from here: the relaxed loads and stores see every union above
     let root = |mut a: usize| loop {
@@ -332,12 +378,18 @@ pub fn connectivity_into<const D: usize>(
         let c = root_to_comp[r];
         label[i] = c;
         size[c as usize] += 1;
-        let (touches, has_nb) = flags[i];
-        if touches {
-            anchored[c as usize] = true;
-        }
-        if !has_nb {
+        if !has_nb[i] {
             isolated.push(i);
+        }
+    }
+    // anchoring: the fluid particles in the rows of the particles that carry no fluid value
+    // (Dirichlet particles and their images) — the pairs a fluid row has with them
+    for d in (0..n).filter(|&d| alias(role, d).is_none()) {
+        for k in nl.row(d) {
+            let j = nl.indices()[k] as usize;
+            if role[j].is_fluid() {
+                anchored[label[j] as usize] = true;
+            }
         }
     }
 }
