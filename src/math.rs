@@ -56,6 +56,18 @@ pub fn is_finite<const D: usize>(a: &[f64; D]) -> bool {
     a.iter().all(|v| v.is_finite())
 }
 
+/// The first `i` in `0..n` with `bad(i)`, tested in parallel chunks of 4 096 indices (each
+/// chunk a sequential scan; a per-index parallel search checks a shared flag at every index:
+/// the input checks of a 2D 10⁶ step's particles took 12 ms with it, 3.5–4.5 ms chunked).
+pub fn first_where(n: usize, bad: impl Fn(usize) -> bool + Sync) -> Option<usize> {
+    const CHUNK: usize = 4096;
+    use rayon::prelude::*;
+    (0..n.div_ceil(CHUNK)).into_par_iter().find_map_first(|c| {
+        let (start, end) = (c * CHUNK, ((c + 1) * CHUNK).min(n));
+        (start..end).find(|&i| bad(i))
+    })
+}
+
 /// Runs `f` on a thread of rayon's pool (at once when already on one). A parallel loop started
 /// from outside the pool is sent to it and waited for — a futex wake-up and sleep per loop;
 /// the entry points that run hundreds of loops (a flow step, a projection, a prediction) go
@@ -213,6 +225,30 @@ mod sparse_tests {
                 let naive: f64 = (0..len).map(|k| values[k] * xc[cols[k] as usize]).sum();
                 assert!((got - naive).abs() <= 1e-14 * (1.0 + naive.abs()));
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod first_where_tests {
+    use super::first_where;
+
+    /// The smallest bad index whatever chunk it falls in and however many chunks are bad.
+    #[test]
+    fn first_where_is_the_smallest_bad_index() {
+        let n = 50_000;
+        assert_eq!(first_where(n, |_| false), None);
+        assert_eq!(first_where(0, |_| true), None);
+        for bad in [
+            vec![0],
+            vec![4095],
+            vec![4096, 4097],
+            vec![49_999],
+            vec![12_000, 8_200, 30_000],
+        ] {
+            let want = bad.iter().copied().min();
+            let got = crate::math::in_pool(|| first_where(n, |i| bad.contains(&i)));
+            assert_eq!(got, want, "{bad:?}");
         }
     }
 }

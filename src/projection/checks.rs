@@ -18,10 +18,9 @@
 
 use crate::boundary::{first_ghost, Boundary};
 use crate::error::InputError;
-use crate::math::is_finite;
+use crate::math::{first_where, is_finite};
 use crate::neighbors::{NeighborList, Periodicity};
 use crate::particles::{Particles, Role};
-use rayon::prelude::*;
 
 /// Which per-particle values a stage reads (so that the checks cover exactly those).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -52,7 +51,7 @@ pub fn check_particles<const D: usize>(
         }
     }
     check_roles(&particles.role)?;
-    let bad = (0..n).into_par_iter().find_first(|&i| {
+    let bad = first_where(n, |i| {
         let ghost = matches!(particles.role[i], Role::Ghost { .. });
         !is_finite(&particles.x[i])
             || (!ghost && reads.velocity && !is_finite(&particles.u[i]))
@@ -130,10 +129,7 @@ pub fn check_field<const D: usize>(
             expected: if ghosts_optional { first } else { n },
         });
     }
-    if let Some(i) = (0..first)
-        .into_par_iter()
-        .find_first(|&i| !is_finite(&v[i]))
-    {
+    if let Some(i) = first_where(first, |i| !is_finite(&v[i])) {
         return Err(InputError::NonFinite { field, particle: i });
     }
     Ok(())
@@ -169,7 +165,7 @@ pub fn check_neighbors<const D: usize>(
     if nl.measured_at() != 0 && nl.measured_at() == crate::neighbors::positions_hash(x) {
         return Ok(());
     }
-    let bad = (0..x.len()).into_par_iter().find_first(|&i| {
+    let bad = first_where(x.len(), |i| {
         nl.row(i).any(|k| {
             let j = nl.indices()[k] as usize;
             let mut d: [f64; D] = std::array::from_fn(|a| x[j][a] - x[i][a]);
