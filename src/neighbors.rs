@@ -22,7 +22,7 @@ fn next_epoch() -> u64 {
 
 use crate::error::InputError;
 use crate::kernel::{Kernel, Weight};
-use crate::math::{is_finite, norm2, row_pieces, PerRow};
+use crate::math::{first_where, is_finite, norm2, row_pieces, PerRow};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
@@ -522,11 +522,13 @@ impl<const D: usize> NeighborList<D> {
         }
         let lim2 = 0.25 * self.config.skin * self.config.skin;
         let per = self.config.periodic;
-        x.par_iter().zip(self.x_ref.par_iter()).any(|(a, b)| {
-            let mut d: [f64; D] = std::array::from_fn(|k| a[k] - b[k]);
+        let x_ref = &self.x_ref;
+        first_where(x.len(), |i| {
+            let mut d: [f64; D] = std::array::from_fn(|k| x[i][k] - x_ref[i][k]);
             per.min_image(&mut d);
             !(norm2(&d) < lim2) // also true for NaN
         })
+        .is_some()
     }
 
     /// Brings the list up to date with positions `x`: searches again only when needed, then
@@ -650,7 +652,7 @@ impl<const D: usize> NeighborList<D> {
         // in the box the plain difference along such an axis is the minimum image
         // (`|d_k| < len_k / 2`: `min_image` would return it unchanged — the same bits)
         let reach = ((self.config.h + self.config.skin) * (1.0 + 1e-9) + self.config.skin) * 1.001;
-        let wrapped = !per.any() || x.par_iter().all(|p| per.inside(p));
+        let wrapped = !per.any() || first_where(n, |i| !per.inside(&x[i])).is_none();
         // which axes of row i need the minimum image (all when some position is outside)
         let near = |i: usize| -> [bool; D] {
             if wrapped {
