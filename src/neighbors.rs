@@ -994,10 +994,10 @@ where
         });
 }
 
-/// Sorts a candidate row, drops repeats and `own`. When the row's indices span few enough
-/// 64-bit words (particles numbered in some spatial order: a lattice's rows, a previous
-/// search's cells) they are set as bits of a bitmap and read back in order — `O(len + span/64)`
-/// against the `O(len log len)` of a sort, which took a quarter of a 2D search; otherwise sorted.
+/// Sorts a candidate row, drops repeats and `own`. When the row's indices span at most 8
+/// 64-bit words per candidate (particles numbered in a spatial order, as a lattice's rows are)
+/// they are set as bits of a bitmap and read back in order — `O(len + span/64)` against the
+/// `O(len log len)` of a sort, which took a quarter of a 2D search; otherwise sorted.
 fn sort_row(row: &mut Vec<u32>, bits: &mut Vec<u64>, own: u32) {
     if row.is_empty() {
         return;
