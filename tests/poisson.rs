@@ -1063,6 +1063,185 @@ fn cg_on_several_right_sides_at_once_equals_cg_on_each() {
 }
 
 #[test]
+fn cg_on_the_unformed_viscous_matrix_equals_cg_on_the_formed_one() {
+    // `W + c K` applied from the Poisson matrix `K` (iterative::Shifted: what a moving step's
+    // viscous solve reads when no wall image changes it) against the same matrix formed by
+    // Assembly::helmholtz_from: the same iterations and, to rounding, the same solutions
+    use gpm::poisson::iterative::{pcg_multi, pcg_multi_shifted_in, CgWork, Shifted};
+    let (p, nl, _) = jittered_periodic(24, 0.1);
+    let c = 0.05;
+    let mut k = Assembly::default();
+    k.within_h = true;
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    let ones = vec![1.0; p.len()];
+    let mut h = Assembly::default();
+    h.helmholtz_from(&k, &nl, &p.vol, &p.role, 1.0, c, &ones)
+        .expect("K belongs to this configuration");
+    let m = k.n();
+    let shift: Vec<f64> = k.particle.iter().map(|&q| p.vol[q as usize]).collect();
+    let b0: Vec<f64> = (0..m).map(|i| (0.37 * i as f64).sin()).collect();
+    let b1: Vec<f64> = (0..m).map(|i| 1.0 + (0.11 * i as f64).cos()).collect();
+    let guess: Vec<f64> = (0..m).map(|i| 0.1 * (i % 5) as f64).collect();
+    let mut work = CgWork::default();
+    for rel_tol in [1e-12, 1e-4] {
+        let (mut x0, mut x1) = (vec![0.0; m], guess.clone());
+        let formed = pcg_multi(&h, [&b0, &b1], [&mut x0, &mut x1], rel_tol, 0.0, 1000).unwrap();
+        let (mut y0, mut y1) = (vec![0.0; m], guess.clone());
+        let op = Shifted {
+            a: &k,
+            scale: c,
+            shift: &shift,
+        };
+        let read = pcg_multi_shifted_in(
+            &mut work,
+            op,
+            [&b0, &b1],
+            [&mut y0, &mut y1],
+            rel_tol,
+            0.0,
+            1000,
+        )
+        .unwrap();
+        for (col, (x, y)) in [(&x0, &y0), (&x1, &y1)].into_iter().enumerate() {
+            assert_eq!(
+                formed[col].iters, read[col].iters,
+                "column {col}, tol {rel_tol}"
+            );
+            let scale = x.iter().map(|v| v.abs()).fold(0.0, f64::max);
+            let diff = x
+                .iter()
+                .zip(y)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            assert!(diff <= 1e-12 * scale, "column {col}: {diff:e} of {scale:e}");
+            // the true residuals agree to the rounding of a product (relative to ‖b‖)
+            let bnorm = [&b0, &b1][col].iter().map(|v| v * v).sum::<f64>().sqrt();
+            let (fr, rr) = (formed[col].abs_residual, read[col].abs_residual);
+            assert!(
+                (fr - rr).abs() <= 1e-14 * bnorm,
+                "{fr:e} vs {rr:e} (‖b‖ {bnorm:e})"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_viscous_solve_reads_the_poisson_matrix_and_starts_from_the_last_change() {
+    // A moving step's viscous solve without wall images reads `K` instead of forming
+    // `W + c K` (the solver's own matrix stays empty) and gives the assembled solve's
+    // answer; its next solve starts from `r + (u − r)_last`, which needs fewer iterations
+    // than the right side alone, and still stops at the tolerance.
+    use gpm::poisson::HelmholtzSolver;
+    use std::f64::consts::PI;
+    let (p, nl, _) = jittered_periodic(24, 0.1);
+    let mut k = Assembly::default();
+    k.within_h = true;
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    let c = 0.05;
+    let rule = |_: usize| ([1.0; 2], [0.0; 2]);
+    let params = SolveParams {
+        solver: SolverKind::Cg,
+        ..Default::default()
+    };
+    let exact = |r: &[[f64; 2]]| -> Vec<[f64; 2]> {
+        let tight = SolveParams {
+            rel_tol: 1e-15,
+            viscous_rel_tol: 1e-15,
+            warm_start: false,
+            ..params
+        };
+        let mut u = r.to_vec();
+        HelmholtzSolver::new()
+            .solve(&nl, &p.vol, &p.role, &rule, c, r, &mut u, &tight)
+            .unwrap();
+        u
+    };
+    let err = |u: &[[f64; 2]], v: &[[f64; 2]]| -> f64 {
+        u.iter()
+            .zip(v)
+            .flat_map(|(a, b)| [(a[0] - b[0]).abs(), (a[1] - b[1]).abs()])
+            .fold(0.0, f64::max)
+    };
+    let field = |t: f64| -> Vec<[f64; 2]> {
+        p.x.iter()
+            .map(|x| {
+                [
+                    (2.0 * PI * (x[1] + t)).sin(),
+                    (2.0 * PI * (x[0] - t)).cos() + 0.3 * (4.0 * PI * x[1]).sin(),
+                ]
+            })
+            .collect()
+    };
+    let mut solver = HelmholtzSolver::new();
+    solver.assume_moving();
+    let r1 = field(0.0);
+    let mut u1 = r1.clone();
+    solver
+        .solve_with_poisson(
+            Some(&k),
+            &nl,
+            &p.vol,
+            &p.role,
+            &rule,
+            c,
+            &r1,
+            &mut u1,
+            &params,
+        )
+        .unwrap();
+    assert!(
+        solver.assembly.values.is_empty(),
+        "W + c K was formed ({} values)",
+        solver.assembly.values.len()
+    );
+    let e1 = err(&u1, &exact(&r1));
+    assert!(e1 < 1e-10, "first solve off by {e1:e}");
+    // the next step's right side, a little later
+    let r2 = field(0.002);
+    let mut u2 = r2.clone();
+    let warm = solver
+        .solve_with_poisson(
+            Some(&k),
+            &nl,
+            &p.vol,
+            &p.role,
+            &rule,
+            c,
+            &r2,
+            &mut u2,
+            &params,
+        )
+        .unwrap();
+    let mut cold_solver = HelmholtzSolver::new();
+    cold_solver.assume_moving();
+    let mut v2 = r2.clone();
+    let cold = cold_solver
+        .solve_with_poisson(
+            Some(&k),
+            &nl,
+            &p.vol,
+            &p.role,
+            &rule,
+            c,
+            &r2,
+            &mut v2,
+            &params,
+        )
+        .unwrap();
+    assert!(
+        warm.iters < cold.iters,
+        "warm start {} iterations, from the right side {}",
+        warm.iters,
+        cold.iters
+    );
+    let reference = exact(&r2);
+    for (what, u) in [("warm", &u2), ("cold", &v2)] {
+        let e = err(u, &reference);
+        assert!(e < 1e-10, "{what}: off by {e:e}");
+    }
+}
+
+#[test]
 fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit() {
     // K assembled on the pairs within h (a moving run's pattern, rebuilt each step with the
     // diagonal inserted into the neighbours' sorted row) against K on the candidate pattern

@@ -277,6 +277,17 @@ impl Assembly {
         self.update_with_values(nl, vol, role, 1.0, c, Some(sigma))
     }
 
+    /// True when this Poisson matrix's pattern and values are those of `nl`'s current pairs
+    /// and `role` (what [`Self::helmholtz_from`] and a viscous solve that reads `K` itself
+    /// require; the volumes are the caller's to keep the same).
+    pub fn is_current<const D: usize>(&self, nl: &NeighborList<D>, role: &[Role]) -> bool {
+        let key = (nl.epoch(), self.pattern_generation(nl), role_hash(role));
+        self.key == Some(key)
+            && self.filled == Some((nl.epoch(), nl.generation()))
+            && self.unknown.len() == role.len()
+            && self.values.len() == self.cols.len()
+    }
+
     /// The Helmholtz matrix of [`Self::update_helmholtz`] derived from the Poisson matrix `k`
     /// of the same configuration instead of from the pairs: the same pattern (copied when `k`'s
     /// changed), `c` times `k`'s values, `mass ω_i` added on the diagonal, and for every image
@@ -298,12 +309,7 @@ impl Assembly {
         c: f64,
         sigma: &[f64],
     ) -> Option<bool> {
-        let key = (nl.epoch(), k.pattern_generation(nl), role_hash(role));
-        if k.key != Some(key)
-            || k.filled != Some((nl.epoch(), nl.generation()))
-            || k.unknown.len() != role.len()
-            || k.values.len() != k.cols.len()
-        {
+        if !k.is_current(nl, role) {
             return None;
         }
         let rebuilt = self.key != k.key
@@ -539,6 +545,13 @@ impl Assembly {
         k.c = c.to_bits();
         k.sigma.clear();
         k.sigma.extend_from_slice(sigma.unwrap_or_default());
+    }
+
+    /// Marks the values as stale: the next update recomputes them (a viscous solve that read
+    /// the Poisson matrix instead, [`crate::poisson::iterative::Shifted`], left them behind).
+    pub(crate) fn discard_values(&mut self) {
+        self.forget_values();
+        self.filled = None;
     }
 
     /// Marks the values as computed from nothing known (the key's memory kept).
