@@ -1242,6 +1242,63 @@ fn the_viscous_solve_reads_the_poisson_matrix_and_starts_from_the_last_change() 
 }
 
 #[test]
+fn the_jacobi_bound_taken_beside_the_values_is_gershgorins() {
+    // Assembly::jacobi_bound (summed while a within-h pattern's values are written: what the
+    // lagged AMG smoother of moving particles reads instead of a pass) against
+    // max_u Σ_j |a_uj| / a_uu computed from the stored matrix
+    let check = |a: &Assembly, what: &str| {
+        let g = (0..a.n())
+            .map(|u| {
+                let (_, v) = a.row(u);
+                v.iter().map(|x| x.abs()).sum::<f64>() / a.values[a.diag[u]]
+            })
+            .fold(0.0, f64::max);
+        let b = a
+            .jacobi_bound()
+            .unwrap_or_else(|| panic!("{what}: no bound"));
+        assert!((b - g).abs() <= 1e-12 * g, "{what}: {b} against {g}");
+        g
+    };
+    // every particle a fluid unknown (the in-place path); the Poisson rows sum to zero
+    let (mut p, mut nl, _) = jittered_periodic(24, 0.1);
+    let mut k = Assembly::default();
+    k.within_h = true;
+    k.keep_pairs = true;
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    let g = check(&k, "periodic Poisson");
+    assert!((g - 2.0).abs() < 1e-12, "zero row sums give 2, not {g}");
+    let mut h = Assembly::default();
+    h.within_h = true;
+    h.update_helmholtz(&nl, &p.vol, &p.role, 0.05, &vec![1.0; p.len()])
+        .unwrap();
+    let g = check(&h, "periodic Helmholtz");
+    assert!(g < 2.0, "the mass term makes the rows dominant: {g}");
+    // moved a little: the values refilled into the kept pattern
+    for (i, x) in p.x.iter_mut().enumerate() {
+        x[0] += 1e-4 * (i as f64).sin();
+    }
+    nl.update(&p.x).unwrap();
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    check(&k, "periodic Poisson, moved");
+    // values written by another path carry no bound
+    k.fill_values(&nl, &p.vol, &p.role).unwrap();
+    assert_eq!(k.jacobi_bound(), None);
+    // wall images (the general path: a source and its images merged into one entry; σ = −1
+    // makes off-diagonal entries positive)
+    let (p, nl, signs) = walled_box(false);
+    let mut k = Assembly::default();
+    k.within_h = true;
+    k.update_poisson(&nl, &p.vol, &p.role).unwrap();
+    check(&k, "walled Poisson");
+    let sigma: Vec<f64> = signs.iter().map(|s| s[0]).collect();
+    let mut h = Assembly::default();
+    h.within_h = true;
+    h.update_helmholtz(&nl, &p.vol, &p.role, 0.05, &sigma)
+        .unwrap();
+    check(&h, "walled Helmholtz");
+}
+
+#[test]
 fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit() {
     // K assembled on the pairs within h (a moving run's pattern, rebuilt each step with the
     // diagonal inserted into the neighbours' sorted row) against K on the candidate pattern

@@ -1190,7 +1190,7 @@ impl Amg {
         let t0 = Instant::now();
         let mut clock = Instant::now();
         let mut times = SetupTimes::default();
-        self.update_fine(a, new_pattern);
+        self.update_fine(a, new_pattern, None, None);
         times.aggregate += lap(&mut clock);
         for l in 0..self.transfers.len() {
             let c = {
@@ -1220,15 +1220,23 @@ impl Amg {
     /// spectral-radius estimate: the cheap step that lets a lagged hierarchy precondition a
     /// changed matrix. A hierarchy of one level (the dense solve) is refactorised instead.
     pub fn update_fine_smoother(&mut self, a: CsrRef<'_>) {
-        self.update_fine(a, false);
+        self.update_fine(a, false, None, None);
     }
 
     /// [`Self::update_fine_smoother`]; with `estimate` (a matrix whose pattern changed: the
     /// same particles moved) the finest level's spectral radius is checked against the new
     /// matrix: a Jacobi weight set for the old matrix may exceed the new one's stable range
     /// (the V-cycle is then not positive definite), so the last estimate is raised where
-    /// Gershgorin's bound does not prove it stable ([`KEEP_RHO`]).
-    fn update_fine(&mut self, a: CsrRef<'_>, estimate: bool) {
+    /// Gershgorin's bound does not prove it stable ([`KEEP_RHO`]). `diag_at` (each row's
+    /// diagonal entry's position) and `bound` (Gershgorin's bound, taken when the values were
+    /// written: [`Assembly::jacobi_bound`]) spare the passes over the matrix that find them.
+    fn update_fine(
+        &mut self,
+        a: CsrRef<'_>,
+        estimate: bool,
+        diag_at: Option<&[usize]>,
+        bound: Option<f64>,
+    ) {
         assert_eq!(a.rows(), self.n, "matrix size changed");
         if self.transfers.is_empty() {
             self.coarse = Coarse::new(a, &self.params);
@@ -1237,7 +1245,20 @@ impl Amg {
         }
         // the new inverse diagonal in the smoother's own vector, scaled in place below
         let mut inv_diag = std::mem::take(&mut self.smoothers[0].s);
-        inv_diagonal_into(a, &mut inv_diag);
+        match diag_at {
+            Some(at) => {
+                inv_diag.resize(at.len(), 0.0);
+                inv_diag
+                    .par_iter_mut()
+                    .zip(at.par_iter())
+                    .with_min_len(MIN_LEN)
+                    .for_each(|(d, &k)| {
+                        let v = a.values[k];
+                        *d = if v > 0.0 { 1.0 / v } else { 0.0 };
+                    });
+            }
+            None => inv_diagonal_into(a, &mut inv_diag),
+        }
         let last = self.smoothers[0].rho;
         // a moved matrix keeps the last estimate, raised where needed to the smallest `ρ` for
         // which Gershgorin's bound `g ≥ ρ(D⁻¹A)` of the new matrix proves the smoother
@@ -1250,7 +1271,8 @@ impl Amg {
             last
         } else {
             let rho = if last > 0.0 {
-                last.max(self.params.smoother_weight * jacobi_gershgorin(a, &inv_diag) / KEEP_RHO)
+                let g = bound.unwrap_or_else(|| jacobi_gershgorin(a, &inv_diag));
+                last.max(self.params.smoother_weight * g / KEEP_RHO)
             } else {
                 spectral_radius(a, &inv_diag, self.params.lanczos_steps)
             };
@@ -1258,9 +1280,10 @@ impl Amg {
             rho
         };
         let w = self.params.smoother_weight / rho;
-        for d in inv_diag.iter_mut() {
-            *d *= w;
-        }
+        inv_diag
+            .par_iter_mut()
+            .with_min_len(MIN_LEN)
+            .for_each(|d| *d *= w);
         self.smoothers[0] = Smoother { s: inv_diag, rho };
     }
 
@@ -1552,7 +1575,7 @@ impl AmgCache {
             }
             AmgSetup::Lagged => {
                 let h = self.amg.as_mut().expect("hierarchy");
-                h.update_fine(m, !same);
+                h.update_fine(m, !same, Some(&a.diag), a.jacobi_bound());
                 self.pattern_id = a.pattern_id();
                 self.lagged += 1;
             }

@@ -57,6 +57,11 @@ pub struct Assembly {
     /// `Σ_j ω_j w_h(r_ij)` over every unknown's row in the same pass as its values: `c0`
     /// (Definition 3.2) over `Ω` for those pair data ([`Self::c0_of`]).
     c0: Option<(u64, u64, f64)>,
+    /// Gershgorin's bound `max_i Σ_j |a_ij| / a_ii` on the spectral radius of `D⁻¹A` for the
+    /// values the last [`Self::update_poisson`] / [`Self::update_helmholtz`] wrote, when it
+    /// took the row sums beside them (`None` otherwise): the lagged AMG smoother's stability
+    /// check reads it instead of a pass over the matrix ([`Self::jacobi_bound`]).
+    jacobi: Option<f64>,
     /// Keep a within-h pattern while the neighbour list's pair set is unchanged
     /// ([`NeighborList::pair_set`]): only the values are refilled, and the pattern's id (which
     /// the AMG and Cholesky caches key on) stays. Off: a new pattern at every measure. The
@@ -326,6 +331,7 @@ impl Assembly {
             self.derived_from = Some(k.pattern_id);
         }
         self.forget_values();
+        self.jacobi = None;
         self.values_reused = false;
         self.values.resize(k.values.len(), 0.0);
         let two_d = 2.0 * D as f64;
@@ -383,6 +389,7 @@ impl Assembly {
         sigma: Option<&[f64]>,
     ) -> Result<bool, SolveError> {
         self.c0 = None;
+        self.jacobi = None;
         let within_h = self.within_h && nl.config().skin > 0.0;
         let key = (nl.epoch(), self.pattern_generation(nl), role_hash(role));
         let current = self.key == Some(key) && self.unknown.len() == role.len();
@@ -390,7 +397,7 @@ impl Assembly {
         if within_h && current && all_fluid && self.cols.len() == nl.n_pairs() + role.len() {
             // the pair set held (`keep_pairs`): the values refilled by the in-place path,
             // which writes the same columns again, and the pattern kept with its id
-            if let Some(c0) = self.fill_all_fluid(nl, vol, mass, c) {
+            if let Some((c0, g)) = self.fill_all_fluid(nl, vol, mass, c) {
                 self.values_reused = false;
                 self.forget_values();
                 if self.reuse_values {
@@ -398,6 +405,7 @@ impl Assembly {
                 }
                 self.filled = Some((nl.epoch(), nl.generation()));
                 self.c0 = Some((nl.epoch(), nl.generation(), c0));
+                self.jacobi = Some(g);
                 return Ok(false);
             }
         }
@@ -408,9 +416,10 @@ impl Assembly {
         }
         self.number_unknowns(role);
         if sigma.is_none() && self.particle.len() == role.len() {
-            if let Some(c0) = self.fill_all_fluid(nl, vol, mass, c) {
+            if let Some((c0, g)) = self.fill_all_fluid(nl, vol, mass, c) {
                 self.set_pattern_built(key, nl, vol, mass, c, sigma);
                 self.c0 = Some((nl.epoch(), nl.generation(), c0));
+                self.jacobi = Some(g);
                 return Ok(true);
             }
         }
@@ -420,7 +429,7 @@ impl Assembly {
         const CHUNK: usize = 256;
         let mut parts = std::mem::take(&mut self.chunks.0);
         parts.resize_with(particle.len().div_ceil(CHUNK), Default::default);
-        let c0 = parts
+        let (c0, g) = parts
             .par_iter_mut()
             .enumerate()
             .map(|(chunk, (lens, cols, vals, diag))| {
@@ -431,7 +440,7 @@ impl Assembly {
                 cols.clear();
                 vals.clear();
                 let mut row: Vec<(u32, f64)> = Vec::with_capacity(64);
-                let mut c0 = 0.0f64;
+                let (mut c0, mut g) = (0.0f64, 0.0f64);
                 for u in start..end {
                     let p = particle[u] as usize;
                     row.clear();
@@ -483,10 +492,11 @@ impl Assembly {
                     lens.push((cols.len() - first) as u32);
                     diag.push(pos as u32);
                     c0 = c0.max(vw);
+                    g = g.max(gershgorin_row(&vals[first..], vals[first + pos]));
                 }
-                c0
+                (c0, g)
             })
-            .reduce(|| 0.0, f64::max);
+            .reduce(|| (0.0, 0.0), |a, b| (a.0.max(b.0), a.1.max(b.1)));
         // offsets and diagonals row by row, the columns and values copied chunk by chunk in
         // parallel
         let bounds = self.set_rows(
@@ -501,6 +511,7 @@ impl Assembly {
         self.chunks.0 = parts;
         self.set_pattern_built(key, nl, vol, mass, c, sigma);
         self.c0 = Some((nl.epoch(), nl.generation(), c0));
+        self.jacobi = Some(g);
         Ok(true)
     }
 
@@ -552,6 +563,7 @@ impl Assembly {
     pub(crate) fn discard_values(&mut self) {
         self.forget_values();
         self.filled = None;
+        self.jacobi = None;
     }
 
     /// Marks the values as computed from nothing known (the key's memory kept).
@@ -567,7 +579,8 @@ impl Assembly {
     /// matrix is known before it is filled (`offsets[u] = nl.offsets()[u] + u`) and the rows
     /// are written in place, in parallel, without the general path's per-chunk rows and their
     /// copy. The same entries, values and sums in the same order (the same bits). Returns
-    /// `c0` (the largest row sum `Σ_j ω_j w_ij`, summed in the same pass), or `None`, having
+    /// `c0` (the largest row sum `Σ_j ω_j w_ij`, summed in the same pass) and Gershgorin's
+    /// bound on `ρ(D⁻¹A)` ([`Self::jacobi_bound`]), or `None`, having
     /// written nothing that counts, when some pair's entry is exactly zero (the general path
     /// leaves such entries out of the pattern).
     fn fill_all_fluid<const D: usize>(
@@ -576,7 +589,7 @@ impl Assembly {
         vol: &[f64],
         mass: f64,
         c: f64,
-    ) -> Option<f64> {
+    ) -> Option<(f64, f64)> {
         let n = self.particle.len();
         let nlo = nl.offsets();
         if nlo.len() != n + 1 {
@@ -598,7 +611,7 @@ impl Assembly {
         row_pieces(n, ROW_CHUNK, |u| offsets[u], parts)
             .map(|(rows, ((cols, vals), PerRow(diag)))| {
                 let base = offsets[rows.start];
-                let mut c0 = 0.0f64;
+                let (mut c0, mut g) = (0.0f64, 0.0f64);
                 for (du, u) in rows.enumerate() {
                     let row = nl.row(u);
                     let js = &idx[row.clone()];
@@ -618,14 +631,23 @@ impl Assembly {
                         cols[o] = j;
                         vals[o] = -a;
                     }
+                    let d = dsum + mass * vol[u];
                     cols[start + at] = u as u32;
-                    vals[start + at] = dsum + mass * vol[u];
+                    vals[start + at] = d;
                     diag[du] = offsets[u] + at;
                     c0 = c0.max(vw);
+                    // every off-diagonal entry is −a < 0: Σ_j |a_uj| = dsum + d
+                    g = g.max(if d > 0.0 { (dsum + d) / d } else { 0.0 });
                 }
-                Some(c0)
+                Some((c0, g))
             })
-            .reduce(|| Some(0.0), |a, b| Some(a?.max(b?)))
+            .reduce(
+                || Some((0.0, 0.0)),
+                |a, b| {
+                    let (a, b) = (a?, b?);
+                    Some((a.0.max(b.0), a.1.max(b.1)))
+                },
+            )
     }
 
     /// Fills the values of `K` for the current pair data (pattern must be up to date).
@@ -662,6 +684,14 @@ impl Assembly {
             Some((e, g, c0)) if e == nl.epoch() && g == nl.generation() => Some(c0),
             _ => None,
         }
+    }
+
+    /// Gershgorin's bound `max_i Σ_j |a_ij| / a_ii` on `ρ(D⁻¹A)` for the current values, when
+    /// the last update took it beside them (a within-`h` pattern's build or refill, as a moving
+    /// step does); `None` otherwise (values from [`Self::fill_values`], another path, or
+    /// changed by hand: the field is public, the bound then no longer applies).
+    pub fn jacobi_bound(&self) -> Option<f64> {
+        self.jacobi
     }
 
     /// True when the last fill used exactly these inputs (same pattern, same pair data
@@ -705,6 +735,7 @@ impl Assembly {
         }
         self.values_reused = false;
         self.forget_values();
+        self.jacobi = None;
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
@@ -787,5 +818,15 @@ impl Assembly {
     /// The diagonal of `K`.
     pub fn diagonal(&self) -> Vec<f64> {
         self.diag.iter().map(|&k| self.values[k]).collect()
+    }
+}
+
+/// One row's Gershgorin ratio `Σ_j |a_uj| / a_uu` (0 where the diagonal is not positive,
+/// as the Jacobi smoother's inverse diagonal is).
+fn gershgorin_row(vals: &[f64], d: f64) -> f64 {
+    if d > 0.0 {
+        vals.iter().map(|v| v.abs()).sum::<f64>() / d
+    } else {
+        0.0
     }
 }
