@@ -189,6 +189,9 @@ impl FromStr for Weight {
 pub struct Kernel<const D: usize> {
     weight: Weight,
     h: f64,
+    /// `1 / h`: `r / h` is taken as `r · (1/h)`, a multiplication where a division would
+    /// hold up the measure's divider (see [`Self::w_and_wr2`]).
+    inv_h: f64,
     /// normalisation / h^D
     scale: f64,
 }
@@ -198,7 +201,12 @@ impl<const D: usize> Kernel<D> {
     pub fn new(weight: Weight, h: f64) -> Self {
         assert!(D == 2 || D == 3, "gpm supports D = 2 and D = 3");
         let scale = weight.normalisation(D) / h.powi(D as i32);
-        Kernel { weight, h, scale }
+        Kernel {
+            weight,
+            h,
+            inv_h: 1.0 / h,
+            scale,
+        }
     }
     /// The reference weight.
     pub fn weight(&self) -> Weight {
@@ -211,12 +219,21 @@ impl<const D: usize> Kernel<D> {
     /// `w_h(r)`; zero for `r ≥ h`.
     #[inline]
     pub fn w_h(&self, r: f64) -> f64 {
-        self.scale * self.weight.shape(r / self.h)
+        self.shape_at(r, |x| self.weight.shape(x))
+    }
+    /// `scale · shape(r/h)` with `r/h` as `r · (1/h)`, exactly zero from `r = h` on (where the
+    /// product may round to just below 1).
+    #[inline(always)]
+    fn shape_at(&self, r: f64, shape: impl Fn(f64) -> f64) -> f64 {
+        // a select on the argument, not a branch around the formula: the loop of
+        // `w_and_wr2` stays vectorised (every shape is zero at 1)
+        let x = if r < self.h { r * self.inv_h } else { 1.0 };
+        self.scale * shape(x)
     }
     /// `w_h(√q)` and `w_h(√q) / q` (`∞` at `q = 0`) of every squared distance `q` of `rr`:
     /// bit for bit [`w_h`](Self::w_h) pair by pair, in a loop the compiler vectorises (the
     /// weight's formula is chosen once, not per pair) — the neighbour list's measure is
-    /// otherwise bound by the divider's throughput (a square root and two divisions a pair).
+    /// otherwise bound by the divider's throughput (a square root and a division a pair).
     pub fn w_and_wr2(&self, rr: &[f64], w: &mut [f64], wr2: &mut [f64]) {
         match self.weight {
             Weight::CubicSpline => {
@@ -237,7 +254,7 @@ impl<const D: usize> Kernel<D> {
         shape: impl Fn(f64) -> f64,
     ) {
         for ((&q, wv), wq) in rr.iter().zip(w.iter_mut()).zip(wr2.iter_mut()) {
-            let v = self.scale * shape(q.sqrt() / self.h);
+            let v = self.shape_at(q.sqrt(), &shape);
             *wv = v;
             *wq = if q > 0.0 { v / q } else { f64::INFINITY };
         }
