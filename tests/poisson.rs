@@ -1067,7 +1067,7 @@ fn cg_on_the_unformed_viscous_matrix_equals_cg_on_the_formed_one() {
     // `W + c K` applied from the Poisson matrix `K` (iterative::Shifted: what a moving step's
     // viscous solve reads when no wall image changes it) against the same matrix formed by
     // Assembly::helmholtz_from: the same iterations and, to rounding, the same solutions
-    use gpm::poisson::iterative::{pcg_multi, pcg_multi_shifted_in, CgWork, Shifted};
+    use gpm::poisson::iterative::{pcg_multi, pcg_multi_in, CgWork, Shifted};
     let (p, nl, _) = jittered_periodic(24, 0.1);
     let c = 0.05;
     let mut k = Assembly::default();
@@ -1092,7 +1092,7 @@ fn cg_on_the_unformed_viscous_matrix_equals_cg_on_the_formed_one() {
             scale: c,
             shift: &shift,
         };
-        let read = pcg_multi_shifted_in(
+        let read = pcg_multi_in(
             &mut work,
             op,
             [&b0, &b1],
@@ -1172,23 +1172,22 @@ fn the_viscous_solve_reads_the_poisson_matrix_and_starts_from_the_last_change() 
             })
             .collect()
     };
-    let mut solver = HelmholtzSolver::new();
-    solver.assume_moving();
+    // one moving step's solve, reading `k`
+    let step = |solver: &mut HelmholtzSolver, r: &[[f64; 2]]| -> (Vec<[f64; 2]>, usize) {
+        let mut u = r.to_vec();
+        let info = solver
+            .solve_with_poisson(Some(&k), &nl, &p.vol, &p.role, &rule, c, r, &mut u, &params)
+            .unwrap();
+        (u, info.iters)
+    };
+    let moving = || {
+        let mut s = HelmholtzSolver::new();
+        s.assume_moving();
+        s
+    };
+    let mut solver = moving();
     let r1 = field(0.0);
-    let mut u1 = r1.clone();
-    solver
-        .solve_with_poisson(
-            Some(&k),
-            &nl,
-            &p.vol,
-            &p.role,
-            &rule,
-            c,
-            &r1,
-            &mut u1,
-            &params,
-        )
-        .unwrap();
+    let (u1, _) = step(&mut solver, &r1);
     assert!(
         solver.assembly.values.is_empty(),
         "W + c K was formed ({} values)",
@@ -1196,43 +1195,13 @@ fn the_viscous_solve_reads_the_poisson_matrix_and_starts_from_the_last_change() 
     );
     let e1 = err(&u1, &exact(&r1));
     assert!(e1 < 1e-10, "first solve off by {e1:e}");
-    // the next step's right side, a little later
+    // the next step's right side, a little later: from the last change, and from scratch
     let r2 = field(0.002);
-    let mut u2 = r2.clone();
-    let warm = solver
-        .solve_with_poisson(
-            Some(&k),
-            &nl,
-            &p.vol,
-            &p.role,
-            &rule,
-            c,
-            &r2,
-            &mut u2,
-            &params,
-        )
-        .unwrap();
-    let mut cold_solver = HelmholtzSolver::new();
-    cold_solver.assume_moving();
-    let mut v2 = r2.clone();
-    let cold = cold_solver
-        .solve_with_poisson(
-            Some(&k),
-            &nl,
-            &p.vol,
-            &p.role,
-            &rule,
-            c,
-            &r2,
-            &mut v2,
-            &params,
-        )
-        .unwrap();
+    let (u2, warm) = step(&mut solver, &r2);
+    let (v2, cold) = step(&mut moving(), &r2);
     assert!(
-        warm.iters < cold.iters,
-        "warm start {} iterations, from the right side {}",
-        warm.iters,
-        cold.iters
+        warm < cold,
+        "warm start {warm} iterations, from the right side {cold}"
     );
     let reference = exact(&r2);
     for (what, u) in [("warm", &u2), ("cold", &v2)] {

@@ -10,7 +10,7 @@
 use super::amg::{AmgCache, AmgSetup};
 use super::assembly::Assembly;
 use super::direct::Direct;
-use super::iterative::{pcg_in, pcg_multi_shifted_in, pcg_with_in, CgInfo, CgWork, Shifted};
+use super::iterative::{pcg_in, pcg_multi_in, pcg_with_in, CgInfo, CgWork, Shifted};
 use super::{SolveInfo, SolveParams, SolverKind};
 use crate::diagnostics::alias;
 use crate::error::SolveError;
@@ -401,7 +401,7 @@ impl HelmholtzSolver {
                 } else {
                     Shifted::plain(a)
                 };
-                let infos = pcg_multi_shifted_in(
+                let infos = pcg_multi_in(
                     &mut self.cg_work,
                     op,
                     bs,

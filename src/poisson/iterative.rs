@@ -221,20 +221,6 @@ impl CgWork {
     }
 }
 
-/// [`pcg_multi`] with its vectors in `work` (reused: no allocation once they have grown to
-/// the problem's size).
-pub fn pcg_multi_in<const K: usize>(
-    work: &mut CgWork,
-    a: &Assembly,
-    b: [&[f64]; K],
-    x: [&mut [f64]; K],
-    rel_tol: f64,
-    abs_tol: f64,
-    max_iters: usize,
-) -> Result<[CgInfo; K], SolveError> {
-    pcg_multi_shifted_in(work, Shifted::plain(a), b, x, rel_tol, abs_tol, max_iters)
-}
-
 /// The operator `s K + diag(d)` of an assembled `K`, applied without forming it: the implicit
 /// viscous matrix `H = W + c K` of moving particles read from the step's Poisson matrix
 /// (`s = c`, `d = ω`), whose values are new every step — forming `H` is a pass that writes
@@ -247,6 +233,12 @@ pub struct Shifted<'a> {
     pub scale: f64,
     /// `d`, one per unknown (empty: none).
     pub shift: &'a [f64],
+}
+
+impl<'a> From<&'a Assembly> for Shifted<'a> {
+    fn from(a: &'a Assembly) -> Self {
+        Self::plain(a)
+    }
 }
 
 impl<'a> Shifted<'a> {
@@ -286,16 +278,19 @@ impl<'a> Shifted<'a> {
     }
 }
 
-/// [`pcg_multi_in`] on `s K + diag(d)` ([`Shifted`]), which is not formed.
-pub fn pcg_multi_shifted_in<const K: usize>(
+/// [`pcg_multi`] with its vectors in `work` (reused: no allocation once they have grown to
+/// the problem's size), on an assembled matrix or on `s K + diag(d)` ([`Shifted`], not
+/// formed).
+pub fn pcg_multi_in<'a, const K: usize>(
     work: &mut CgWork,
-    a: Shifted<'_>,
+    a: impl Into<Shifted<'a>>,
     b: [&[f64]; K],
     x: [&mut [f64]; K],
     rel_tol: f64,
     abs_tol: f64,
     max_iters: usize,
 ) -> Result<[CgInfo; K], SolveError> {
+    let a: Shifted<'a> = a.into();
     let n = a.a.n();
     a.inv_diagonal_into(&mut work.inv_diag);
     let inv_diag = &work.inv_diag;
