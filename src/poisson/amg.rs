@@ -698,7 +698,16 @@ fn inv_diagonal(a: CsrRef<'_>) -> Vec<f64> {
 fn inv_diagonal_into(a: CsrRef<'_>, out: &mut Vec<f64>) {
     a.diagonal_into(out);
     for d in out.iter_mut() {
-        *d = if *d > 0.0 { 1.0 / *d } else { 0.0 };
+        *d = inv_or_zero(*d);
+    }
+}
+
+/// `1 / d`, or 0 where the diagonal entry `d` is not positive (the smoother skips that row).
+fn inv_or_zero(d: f64) -> f64 {
+    if d > 0.0 {
+        1.0 / d
+    } else {
+        0.0
     }
 }
 
@@ -1252,10 +1261,7 @@ impl Amg {
                     .par_iter_mut()
                     .zip(at.par_iter())
                     .with_min_len(MIN_LEN)
-                    .for_each(|(d, &k)| {
-                        let v = a.values[k];
-                        *d = if v > 0.0 { 1.0 / v } else { 0.0 };
-                    });
+                    .for_each(|(d, &k)| *d = inv_or_zero(a.values[k]));
             }
             None => inv_diagonal_into(a, &mut inv_diag),
         }

@@ -492,7 +492,8 @@ impl Assembly {
                     lens.push((cols.len() - first) as u32);
                     diag.push(pos as u32);
                     c0 = c0.max(vw);
-                    g = g.max(gershgorin_row(&vals[first..], vals[first + pos]));
+                    let abs_sum = vals[first..].iter().map(|v| v.abs()).sum::<f64>();
+                    g = g.max(gershgorin_ratio(abs_sum, vals[first + pos]));
                 }
                 (c0, g)
             })
@@ -637,7 +638,7 @@ impl Assembly {
                     diag[du] = offsets[u] + at;
                     c0 = c0.max(vw);
                     // every off-diagonal entry is −a < 0: Σ_j |a_uj| = dsum + d
-                    g = g.max(if d > 0.0 { (dsum + d) / d } else { 0.0 });
+                    g = g.max(gershgorin_ratio(dsum + d, d));
                 }
                 Some((c0, g))
             })
@@ -821,11 +822,12 @@ impl Assembly {
     }
 }
 
-/// One row's Gershgorin ratio `Σ_j |a_uj| / a_uu` (0 where the diagonal is not positive,
-/// as the Jacobi smoother's inverse diagonal is).
-fn gershgorin_row(vals: &[f64], d: f64) -> f64 {
+/// One row's Gershgorin ratio `Σ_j |a_uj| / a_uu` from the row's absolute sum and its
+/// diagonal (0 where the diagonal is not positive, as the Jacobi smoother's inverse diagonal
+/// is).
+fn gershgorin_ratio(abs_sum: f64, d: f64) -> f64 {
     if d > 0.0 {
-        vals.iter().map(|v| v.abs()).sum::<f64>() / d
+        abs_sum / d
     } else {
         0.0
     }
