@@ -1126,10 +1126,11 @@ fn cg_on_the_unformed_viscous_matrix_equals_cg_on_the_formed_one() {
 }
 
 #[test]
-fn the_viscous_solve_of_moving_particles_reads_the_poisson_matrix() {
+fn the_viscous_solve_reads_the_poisson_matrix_and_starts_from_the_last_change() {
     // A moving step's viscous solve without wall images reads `K` instead of forming
     // `W + c K` (the solver's own matrix stays empty) and gives the assembled solve's
-    // answer, step after step.
+    // answer; its next solve starts from `r + (u − r)_last`, which needs fewer iterations
+    // than the right side alone, and still stops at the tolerance.
     use gpm::poisson::HelmholtzSolver;
     use std::f64::consts::PI;
     let (p, nl, _) = jittered_periodic(24, 0.1);
@@ -1172,17 +1173,21 @@ fn the_viscous_solve_of_moving_particles_reads_the_poisson_matrix() {
             .collect()
     };
     // one moving step's solve, reading `k`
-    let step = |solver: &mut HelmholtzSolver, r: &[[f64; 2]]| -> Vec<[f64; 2]> {
+    let step = |solver: &mut HelmholtzSolver, r: &[[f64; 2]]| -> (Vec<[f64; 2]>, usize) {
         let mut u = r.to_vec();
-        solver
+        let info = solver
             .solve_with_poisson(Some(&k), &nl, &p.vol, &p.role, &rule, c, r, &mut u, &params)
             .unwrap();
-        u
+        (u, info.iters)
     };
-    let mut solver = HelmholtzSolver::new();
-    solver.assume_moving();
+    let moving = || {
+        let mut s = HelmholtzSolver::new();
+        s.assume_moving();
+        s
+    };
+    let mut solver = moving();
     let r1 = field(0.0);
-    let u1 = step(&mut solver, &r1);
+    let (u1, _) = step(&mut solver, &r1);
     assert!(
         solver.assembly.values.is_empty(),
         "W + c K was formed ({} values)",
@@ -1190,11 +1195,19 @@ fn the_viscous_solve_of_moving_particles_reads_the_poisson_matrix() {
     );
     let e1 = err(&u1, &exact(&r1));
     assert!(e1 < 1e-10, "first solve off by {e1:e}");
-    // the next step's right side, a little later
+    // the next step's right side, a little later: from the last change, and from scratch
     let r2 = field(0.002);
-    let u2 = step(&mut solver, &r2);
-    let e2 = err(&u2, &exact(&r2));
-    assert!(e2 < 1e-10, "second solve off by {e2:e}");
+    let (u2, warm) = step(&mut solver, &r2);
+    let (v2, cold) = step(&mut moving(), &r2);
+    assert!(
+        warm < cold,
+        "warm start {warm} iterations, from the right side {cold}"
+    );
+    let reference = exact(&r2);
+    for (what, u) in [("warm", &u2), ("cold", &v2)] {
+        let e = err(u, &reference);
+        assert!(e < 1e-10, "{what}: off by {e:e}");
+    }
 }
 
 #[test]

@@ -49,7 +49,7 @@ use crate::flow::{
 };
 use crate::neighbors::NeighborConfig;
 use crate::particles::{Particles, Role};
-use crate::projection::HaloSync;
+use crate::projection::{HaloSync, ProjectionStep};
 use std::sync::{Arc, Mutex};
 
 /// Depth of the particle halo in `h + skin` for fixed particles: what an own row reads at
@@ -71,11 +71,12 @@ pub const HALO_LAYERS_MOVING: f64 = 3.0;
 
 /// The numbers carried with a particle when it migrates or is copied into a halo, besides
 /// its position: global id, velocity, pressure, volume, material acceleration, the Poisson
-/// warm start's last two increments `φⁿ`, `φⁿ⁻¹`, and whether it is in the Dirichlet band (a
-/// free surface's particles shift only along the surface). (The pressure gradient of the
-/// trapezoidal term is taken when the next step starts, from these.)
+/// warm start's last two increments `φⁿ`, `φⁿ⁻¹`, whether it is in the Dirichlet band (a
+/// free surface's particles shift only along the surface), and the viscous solve's last
+/// change `u − r` (its warm start, [`crate::poisson::HelmholtzSolver::warm_change`]). (The
+/// pressure gradient of the trapezoidal term is taken when the next step starts, from these.)
 const fn record_width(d: usize) -> usize {
-    6 + 2 * d
+    6 + 3 * d
 }
 
 /// The limits that set `Δt`, by the code the ranks exchange.
@@ -179,11 +180,10 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let x: Vec<[f64; D]> = share.iter().map(|&i| gp.x[i]).collect();
         let tree = RcbTree::balance(&comm, &x);
         let carried = global.carried_state();
-        let (phi, phi_prev, dt_prev) = global.projection.warm_start();
         let records = pack(
             gp,
             &carried,
-            (phi, phi_prev),
+            &global.projection,
             share.iter().map(|&i| (i, i as u32)),
         );
         let comps = connectivity(&global.nl, &gp.role);
@@ -218,7 +218,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             !carried.material_accel.is_empty(),
             carried.pressure_grad_due,
             (global.time, global.steps),
-            warm_history(phi, phi_prev, dt_prev),
+            WarmHistory::of(&global.projection),
         )?;
         Ok(DecomposedRun {
             ctx,
@@ -239,12 +239,11 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         let n_own = self.n_own;
         let p = &self.sim.particles;
         let carried = self.sim.carried_state();
-        let (phi, phi_prev, dt_prev) = self.sim.projection.warm_start();
-        let warm = warm_history(phi, phi_prev, dt_prev);
+        let warm = WarmHistory::of(&self.sim.projection);
         let records = pack(
             p,
             &carried,
-            (phi, phi_prev),
+            &self.sim.projection,
             (0..n_own).map(|i| (i, self.gid[i])),
         );
         let x: Vec<[f64; D]> = p.x[..n_own].to_vec();
@@ -281,7 +280,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
         accel: bool,
         grad: bool,
         clock: (f64, u64),
-        warm: Option<(f64, bool)>,
+        warm: WarmHistory,
     ) -> Result<Local<D, B>, Error> {
         let w = record_width(D);
         let n_own = x.len();
@@ -309,6 +308,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
         };
         let mut gid = Vec::with_capacity(all.len());
         let (mut phi, mut phi_prev) = (Vec::new(), Vec::new());
+        let mut change = Vec::with_capacity(all.len() * D);
         for rec in &all {
             let xi: [f64; D] = std::array::from_fn(|a| rec[a]);
             let r = &rec[D..];
@@ -322,6 +322,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
             gid.push(r[0] as u32);
             phi.push(r[3 + 2 * D]);
             phi_prev.push(r[4 + 2 * D]);
+            change.extend_from_slice(&r[6 + 2 * D..6 + 3 * D]);
             if accel {
                 carried
                     .material_accel
@@ -341,12 +342,18 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
         sim.particles.p[..n_real].copy_from_slice(&pressure);
         sim.boundary.place_ghosts(&mut sim.particles);
         sim.set_carried_state(carried)?;
-        if let Some((dt_prev, before)) = warm {
-            // the ghosts' entries are not unknowns: zero
-            let n = sim.particles.len();
+        // the ghosts' entries are not unknowns: zero
+        let n = sim.particles.len();
+        if let Some((dt_prev, before)) = warm.poisson {
             phi.resize(n, 0.0);
             phi_prev.resize(if before { n } else { 0 }, 0.0);
             sim.projection.set_warm_start(phi, phi_prev, dt_prev);
+        }
+        if warm.viscous_c > 0.0 {
+            change.resize(n * D, 0.0);
+            sim.projection
+                .viscous
+                .set_warm_change(change, warm.viscous_c);
         }
         (sim.time, sim.steps) = (clock.0, clock.1);
         sim.projection.solver.external = Some(Box::new(Shared(self.poisson.clone())));
@@ -376,10 +383,24 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
     }
 }
 
-/// The warm start's history to hand on: the last `Δt` once a step was taken, and whether
-/// the increment before the last one is there too.
-fn warm_history(phi: &[f64], phi_prev: &[f64], dt_prev: f64) -> Option<(f64, bool)> {
-    (dt_prev > 0.0 && !phi.is_empty()).then_some((dt_prev, !phi_prev.is_empty()))
+/// The solvers' warm-start histories to hand on besides the per-particle values of the
+/// records: the Poisson problem's last `Δt` once a step was taken and whether the increment
+/// before the last one is there too, and the `c` of the viscous solve's last change (0:
+/// none).
+#[derive(Clone, Copy, Debug)]
+struct WarmHistory {
+    poisson: Option<(f64, bool)>,
+    viscous_c: f64,
+}
+
+impl WarmHistory {
+    fn of<const D: usize>(projection: &ProjectionStep<D>) -> Self {
+        let (phi, phi_prev, dt_prev) = projection.warm_start();
+        WarmHistory {
+            poisson: (dt_prev > 0.0 && !phi.is_empty()).then_some((dt_prev, !phi_prev.is_empty())),
+            viscous_c: projection.viscous.warm_change().1,
+        }
+    }
 }
 
 /// The copies of other ranks' particles refreshed from their owners, for the projection.
@@ -402,9 +423,11 @@ impl<C: Comm> HaloSync for Sync<C> {
 fn pack<const D: usize>(
     p: &Particles<D>,
     carried: &CarriedState<D>,
-    warm: (&[f64], &[f64]),
+    projection: &ProjectionStep<D>,
     which: impl Iterator<Item = (usize, u32)>,
 ) -> Vec<f64> {
+    let (phi, phi_prev, _) = projection.warm_start();
+    let change = projection.viscous.warm_change().0;
     let mut out = Vec::new();
     for (i, g) in which {
         out.push(g as f64);
@@ -412,9 +435,11 @@ fn pack<const D: usize>(
         out.push(p.p[i]);
         out.push(p.vol[i]);
         out.extend_from_slice(&carried.material_accel.get(i).copied().unwrap_or([0.0; D]));
-        out.push(warm.0.get(i).copied().unwrap_or(0.0));
-        out.push(warm.1.get(i).copied().unwrap_or(0.0));
+        out.push(phi.get(i).copied().unwrap_or(0.0));
+        out.push(phi_prev.get(i).copied().unwrap_or(0.0));
         out.push((p.role[i] == Role::Dirichlet) as u8 as f64);
+        let c = change.get(i * D..(i + 1) * D).unwrap_or(&[0.0; D]);
+        out.extend_from_slice(c);
     }
     out
 }

@@ -36,6 +36,11 @@ pub struct HelmholtzSolver {
     consts: Vec<f64>,
     rhs_const: Vec<f64>,
     cg_work: CgWork,
+    /// The last solve's change `u − r` at every particle (`D` per particle, flat) and its `c`:
+    /// the next guess is `r + (c / c_last)(u − r)_last` (the change is `≈ c W⁻¹K u`, smooth
+    /// in time; on moving particles it halves the iterations, see [`Self::solve`]).
+    delta: Vec<f64>,
+    c_last: f64,
     /// `ω` per unknown when the solve reads the Poisson matrix ([`Shifted`]).
     shift: Vec<f64>,
     /// `Auto`: numeric Cholesky factorisations caused by changed values.
@@ -51,6 +56,21 @@ impl HelmholtzSolver {
     /// An empty solver.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The warm start's history: the last solve's change `u − r` at every particle (`D` per
+    /// particle, flat; entries of particles that were not unknowns are zero or stale) and
+    /// the `c` it was solved with (0 before the first solve).
+    pub fn warm_change(&self) -> (&[f64], f64) {
+        (&self.delta, self.c_last)
+    }
+
+    /// Sets the warm start's history (see [`Self::warm_change`]): the particle decomposition
+    /// hands it to a rank's rebuilt local simulation with the particles (indexed like them), so
+    /// that its next solve starts from the guess the single process would take.
+    pub fn set_warm_change(&mut self, delta: Vec<f64>, c_last: f64) {
+        self.delta = delta;
+        self.c_last = c_last;
     }
 
     /// Tells `Auto` that the matrix values will change at every solve (moving particles), so
@@ -73,6 +93,8 @@ impl HelmholtzSolver {
     /// they are). When every ghost has the same `σ` for all components (no-slip walls) one
     /// matrix serves them all; otherwise (a free-slip wall: `σ = −1` for the normal component,
     /// `+1` for the tangential ones) each component has its own matrix and is solved in turn.
+    /// With `params.warm_start` an iterative solve starts from `r + (c / c_last)(u − r)_last`,
+    /// the right side plus the last solve's change scaled to this `c` ([`Self::warm_change`]).
     #[allow(clippy::too_many_arguments)]
     pub fn solve<const D: usize>(
         &mut self,
@@ -252,9 +274,17 @@ impl HelmholtzSolver {
                 });
         }
         let assemble_seconds = t0.elapsed().as_secs_f64();
+        // the warm start: the right side plus the last change, scaled to this `c`
+        self.delta.resize(n * D, 0.0);
+        let scale = if self.c_last > 0.0 {
+            c / self.c_last
+        } else {
+            0.0
+        };
+        let delta = std::mem::take(&mut self.delta);
         let guess = |u: &[[f64; D]], p: usize, d: usize| -> f64 {
             if params.warm_start {
-                u[p][d]
+                u[p][d] + scale * delta[p * D + d]
             } else {
                 0.0
             }
@@ -308,6 +338,9 @@ impl HelmholtzSolver {
                 }
             }
             info.solve_seconds = t.elapsed().as_secs_f64();
+            self.delta = delta;
+            remember(&mut self.delta, &a.particle, comps, r, u);
+            self.c_last = c;
             return Ok(info);
         }
         let kind = solver_kind::<D>(m, params, self.auto_factorisations);
@@ -453,6 +486,7 @@ impl HelmholtzSolver {
                 }
             }
         }
+        self.delta = delta;
         for d in comps.clone() {
             for (uix, &p) in a.particle.iter().enumerate() {
                 let v = self.x[d * m + uix];
@@ -464,6 +498,8 @@ impl HelmholtzSolver {
                 u[p as usize][d] = v;
             }
         }
+        remember(&mut self.delta, &a.particle, comps.clone(), r, u);
+        self.c_last = c;
         // ghosts alias fluid particles; keep the unused import honest
         debug_assert!(role
             .iter()
@@ -485,5 +521,22 @@ fn solver_kind<const D: usize>(m: usize, params: &SolveParams, factorisations: u
             }
         }
         k => k,
+    }
+}
+
+/// Stores the solve's change `u − r` of the components `comps` at the unknowns' particles in
+/// `delta` (`D` per particle), the next solve's warm start.
+fn remember<const D: usize>(
+    delta: &mut [f64],
+    particle: &[u32],
+    comps: std::ops::Range<usize>,
+    r: &[[f64; D]],
+    u: &[[f64; D]],
+) {
+    for &p in particle {
+        let p = p as usize;
+        for d in comps.clone() {
+            delta[p * D + d] = u[p][d] - r[p][d];
+        }
     }
 }
