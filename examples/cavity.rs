@@ -101,6 +101,11 @@ struct Args {
     /// corners; up to 0.5).
     #[arg(long, default_value_t = 0.0)]
     lid_ramp: f64,
+    /// Subtract the lid corners' singular Stokes flow (Botella & Peyret 1998; the scene key
+    /// `corner_subtraction`, module `gpm::scene::corner`): fixed particles and the classic lid
+    /// only; the reported pressure is then the regular part's.
+    #[arg(long)]
+    corner_subtraction: bool,
     /// Operator set: auto (gpm on the lattice, consistent for moving particles), gpm or
     /// consistent.
     #[arg(long, default_value = "auto")]
@@ -157,6 +162,7 @@ fn config(a: &Args) -> CavityConfig {
         c.viscous_theta = a.theta;
         c.scene.source_ghosts = a.source_ghosts;
         c.scene.lid_ramp = a.lid_ramp;
+        c.scene.corner_subtraction = a.corner_subtraction;
         c.operators = a.operators;
         if a.laplacian.is_some() {
             c.laplacian = a.laplacian;

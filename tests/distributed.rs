@@ -630,3 +630,31 @@ fn every_scene_runs_decomposed_like_one_process() {
         .unwrap();
     }
 }
+
+/// A cavity with the lid corners' singular part subtracted is refused by the particle
+/// decomposition (its local simulations would run without it), naming the key.
+#[test]
+fn the_decomposition_refuses_a_subtracted_corner_singularity() {
+    use gpm::distributed::decomposed::DecomposedRun;
+    let cfg = cavity::CavityConfig {
+        flow: gpm::scene::FlowConfig {
+            n: 16,
+            re: 1000.0,
+            ..cavity::CavityConfig::default().flow
+        },
+        scene: cavity::Cavity {
+            corner_subtraction: true,
+            ..Default::default()
+        },
+    };
+    let errors = ThreadComm::run(2, |comm| {
+        let global = cavity::build(&cfg).unwrap();
+        DecomposedRun::new(comm, &global)
+            .err()
+            .map(|e| e.to_string())
+    });
+    for e in errors {
+        let e = e.expect("refused");
+        assert!(e.contains("corner_subtraction"), "{e}");
+    }
+}

@@ -168,6 +168,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             )
             .into());
         }
+        if global.projection.singular.is_some() {
+            return Err(InputError::parameter(
+                "corner_subtraction",
+                1.0,
+                "the particle decomposition does not carry a singular part (run it on one \
+                 process)",
+            )
+            .into());
+        }
         let moving = global.params.motion != Motion::Eulerian;
         let config = *global.nl.config();
         let layers = if moving {

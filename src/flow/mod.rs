@@ -298,6 +298,8 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     /// simulation's particles (the particle decomposition: over every rank's own particles);
     /// `None`: the mean over this simulation's fluid particles.
     pub(crate) volume_mean: Option<f64>,
+    /// The steady acceleration of a singular part (`set_singular_part`), empty without one.
+    singular_accel: Vec<[f64; D]>,
 }
 
 /// What a Lagrangian step hands to the next for each particle besides its position,
@@ -383,6 +385,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             shift_speed: None,
             volume_shift: Vec::new(),
             volume_mean: None,
+            singular_accel: Vec::new(),
         };
         // predict and project act on the same configuration in every step of the driver
         sim.projection.overlap_solve_setup = true;
@@ -599,6 +602,50 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         self.nl.update(&self.particles.x)?;
         self.update_volumes()?;
         Ok(rebuilt)
+    }
+
+    /// Adds a steady singular part `u_s` to the solution (Botella & Peyret 1998: the particles
+    /// carry `u`, their discrete operators act on the regular part `u − u_s`): `accel` is the
+    /// steady acceleration `u_s` contributes to every fluid particle's momentum beyond what the
+    /// operators make of it (the exact terms minus the discrete ones), added in every
+    /// predictor; `part` is what the projection leaves out of the divergence
+    /// ([`SingularPart`](crate::projection::SingularPart)). Fixed particles only (the fields
+    /// are of this configuration); `None` removes it. [`crate::scene::corner`] makes the lid
+    /// corners' one.
+    pub fn set_singular_part(
+        &mut self,
+        part: Option<(Vec<[f64; D]>, crate::projection::SingularPart<D>)>,
+    ) -> Result<(), InputError> {
+        let Some((accel, part)) = part else {
+            self.singular_accel.clear();
+            self.projection.singular = None;
+            return Ok(());
+        };
+        if self.plan.has(Stage::Advection) {
+            return Err(InputError::Parameter {
+                name: "singular part".into(),
+                value: f64::NAN,
+                reason: "a steady singular part needs fixed particles (the Eulerian frame)".into(),
+            });
+        }
+        let n = self.particles.len();
+        if accel.len() != n {
+            return Err(InputError::LengthMismatch {
+                field: "singular acceleration",
+                len: accel.len(),
+                expected: n,
+            });
+        }
+        if let Some(i) = accel.iter().position(|a| !a.iter().all(|c| c.is_finite())) {
+            return Err(InputError::NonFinite {
+                field: "singular acceleration",
+                particle: i,
+            });
+        }
+        self.singular_accel = accel;
+        self.projection.singular = Some(part);
+        self.projection
+            .check_singular(&self.particles.role, self.params.projection.source)
     }
 
     /// The time step for the current state, and the limit that set it.
@@ -844,6 +891,11 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 dt,
                 &mut self.work,
             );
+            for (a, s) in self.work.iter_mut().zip(&self.singular_accel) {
+                for k in 0..D {
+                    a[k] += s[k];
+                }
+            }
             Some(&self.work[..])
         } else if trapezoid && !self.old_pressure_grad.is_empty() {
             // the pressure gradient along the trajectory by the trapezoidal rule,
@@ -870,6 +922,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             }));
             self.extra_accel = g;
             Some(&self.extra_accel[..])
+        } else if !self.singular_accel.is_empty() {
+            Some(&self.singular_accel[..])
         } else {
             None
         };

@@ -677,9 +677,30 @@ fn sync_vector<const D: usize>(h: &mut dyn HaloSync, values: &mut [[f64; D]]) {
     }
 }
 
+/// A steady velocity field `u_s` that is part of the solution but not of what the particles'
+/// discrete operators see (a singular part subtracted as in Botella & Peyret 1998, e.g.
+/// [`crate::scene::corner`]): the projection makes the source's divergence of `u − u_s`
+/// vanish, not that of `u`. `u_s` is given at every particle with two continuations into the
+/// ghosts: `source` as the source's ghost rule continues the regular part `u − u_s`
+/// (subtracted from the source and from the measured divergences), `no_slip` as the no-slip
+/// rule does (subtracted from the rotational scheme's divergence). Only with the sum-form
+/// source ([`SourceKind::SumForm`]), whose divergence reads the ghosts as given.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SingularPart<const D: usize> {
+    /// `u_s`, ghosts continued like the source's.
+    pub source: Vec<[f64; D]>,
+    /// `u_s`, ghosts continued by the no-slip rule.
+    pub no_slip: Vec<[f64; D]>,
+}
+
 /// Scratch memory of the projection, reusable across steps (and `Send + Sync`).
 #[derive(Debug, Default)]
 pub struct ProjectionStep<const D: usize> {
+    /// The steady singular part of the velocity the projection leaves out ([`SingularPart`]);
+    /// `None` (the default): none.
+    pub singular: Option<SingularPart<D>>,
+    /// Scratch of the singular part's divergence.
+    work_scalar: Vec<f64>,
     /// When set, the halo of copies of other ranks' particles is refreshed where the step needs
     /// it (see [`HaloSync`]).
     pub halo: Option<Box<dyn HaloSync>>,
@@ -823,6 +844,41 @@ impl<const D: usize> ProjectionStep<D> {
     }
 
     /// Rejects band values that do not cover the particles or are not finite on the band.
+    /// The singular part covers every particle (ghosts included), finite, with the sum-form
+    /// source.
+    pub(crate) fn check_singular(
+        &self,
+        role: &[Role],
+        source: SourceKind,
+    ) -> Result<(), InputError> {
+        let Some(s) = &self.singular else {
+            return Ok(());
+        };
+        if source != SourceKind::SumForm {
+            return Err(InputError::Parameter {
+                name: "singular part".into(),
+                value: f64::NAN,
+                reason: format!("needs the sum-form source, not {source:?}"),
+            });
+        }
+        for (field, v) in [
+            ("singular part (source)", &s.source),
+            ("singular part (no-slip)", &s.no_slip),
+        ] {
+            if v.len() != role.len() {
+                return Err(InputError::LengthMismatch {
+                    field,
+                    len: v.len(),
+                    expected: role.len(),
+                });
+            }
+            if let Some(i) = v.iter().position(|u| !u.iter().all(|c| c.is_finite())) {
+                return Err(InputError::NonFinite { field, particle: i });
+            }
+        }
+        Ok(())
+    }
+
     fn check_band_increment(&self, role: &[Role]) -> Result<(), InputError> {
         let g = &self.band_phi;
         if g.is_empty() {
@@ -1528,6 +1584,7 @@ impl<const D: usize> ProjectionStep<D> {
         checks::check_field("u_star", u_star, &particles.role, true)?;
         let n = particles.len();
         self.check_band_increment(&particles.role)?;
+        self.check_singular(&particles.role, params.source)?;
         let mut report = StepReport {
             dt,
             ..Default::default()
@@ -1605,6 +1662,17 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.work_vec,
             &mut self.rhs,
         );
+        if let Some(s) = &self.singular {
+            // the regular part's source: the divergence of −(ρ/Δt) u_s subtracted
+            subtract_divergence(
+                nl,
+                vol,
+                &s.source,
+                -rho / dt,
+                &mut self.work_scalar,
+                &mut self.rhs,
+            );
+        }
         report.div_before = norm_l2(vol, &self.rhs, role, Region::Omega) / rho * dt;
         if self.halo.is_some() {
             self.source_divergence.clone_from(&self.rhs);
@@ -1666,6 +1734,9 @@ impl<const D: usize> ProjectionStep<D> {
                 &mut self.work_vec2,
                 &mut rot,
             );
+            if let Some(s) = &self.singular {
+                subtract_divergence(nl, vol, &s.no_slip, 1.0, &mut self.work_scalar, &mut rot);
+            }
             self.work = rot;
         }
         self.u_new.clone_from(&particles.u);
@@ -1727,6 +1798,17 @@ impl<const D: usize> ProjectionStep<D> {
             &mut self.work_vec2,
             &mut self.rhs,
         );
+        if let Some(s) = &self.singular {
+            subtract_divergence(
+                nl,
+                vol,
+                &s.source,
+                1.0,
+                &mut self.work_scalar,
+                &mut self.rhs,
+            );
+            report.div_after = norm_l2(vol, &self.rhs, role, Region::Omega);
+        }
         let (ke, vmax) = stages::energy(vol, role, rho, &self.u_new)?;
         report.correction_ratio = stages::correction_ratio(vol, role, &self.u_star, &self.u_new);
         report.kinetic_energy = ke;
@@ -1743,6 +1825,22 @@ impl<const D: usize> ProjectionStep<D> {
         }
         report.timings.diagnostics += diag_extra + t.elapsed().as_secs_f64();
         Ok(report)
+    }
+}
+
+/// `out −= scale · ∇̂h·v` (the sum form, `v`'s ghosts as given); `work` is scratch.
+fn subtract_divergence<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    v: &[[f64; D]],
+    scale: f64,
+    work: &mut Vec<f64>,
+    out: &mut [f64],
+) {
+    work.resize(nl.len(), 0.0);
+    crate::operators::div_sum_into(nl, vol, v, work);
+    for (o, d) in out.iter_mut().zip(work.iter()) {
+        *o -= scale * d;
     }
 }
 

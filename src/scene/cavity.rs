@@ -187,6 +187,11 @@ pub struct Cavity {
     /// ([`crate::boundary::Wall::source_band`]; default ¼; `0`: none — a first-order mass
     /// source at the lid corners).
     pub source_band: f64,
+    /// Subtract the lid corners' singular Stokes flow (Botella & Peyret 1998;
+    /// [`crate::scene::corner`]): the operators act on the regular part, the reported
+    /// pressure is the regular part's. Fixed particles, the classic lid (`lid_ramp` 0) and the
+    /// sum-form source only. Default off.
+    pub corner_subtraction: bool,
 }
 
 super::config_fields!(Cavity {
@@ -194,7 +199,8 @@ super::config_fields!(Cavity {
     lid,
     lid_ramp,
     source_ghosts,
-    source_band
+    source_band,
+    corner_subtraction
 });
 
 /// The default [`Cavity::source_band`]: a quarter of the side (measured at Re 100 and 1000,
@@ -291,6 +297,7 @@ impl Default for Cavity {
             lid_ramp: 0.0,
             source_ghosts: SourceGhosts::Auto,
             source_band: SOURCE_BAND,
+            corner_subtraction: false,
         }
     }
 }
@@ -309,8 +316,25 @@ impl SceneParams for Cavity {
         }
     }
 
-    fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)
+    fn validate(&self, flow: &FlowConfig) -> Result<(), InputError> {
+        validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)?;
+        if self.corner_subtraction {
+            let reason = if self.lid_ramp > 0.0 {
+                Some("the singular part is the classic lid's: not with a lid ramp")
+            } else if flow.motion == crate::flow::Motion::Lagrangian {
+                Some("the singular part needs fixed particles (the Eulerian frame)")
+            } else {
+                None
+            };
+            if let Some(reason) = reason {
+                return Err(InputError::Parameter {
+                    name: "corner_subtraction".into(),
+                    value: 1.0,
+                    reason: reason.into(),
+                });
+            }
+        }
+        Ok(())
     }
 }
 
@@ -370,13 +394,17 @@ pub fn validate_lid_and_steady(
 /// Builds the simulation: an `n × n` cell-centred lattice at rest, ghosts, neighbours, volumes.
 pub fn build(cfg: &CavityConfig) -> Result<Simulation<2, Walls<2>>, Error> {
     cfg.validate()?;
-    build_box(
+    let mut sim = build_box(
         cfg,
         cfg.scene.lid,
         cfg.scene.lid_ramp,
         cfg.scene.source_ghosts,
         cfg.scene.source_band,
-    )
+    )?;
+    if cfg.scene.corner_subtraction {
+        super::corner::install(&mut sim, cfg.scene.lid, cfg.scene.source_band)?;
+    }
+    Ok(sim)
 }
 
 /// The lid-driven box `[0, 1]^D` at rest on an `n^D` cell-centred lattice (volumes `Δx^D`):

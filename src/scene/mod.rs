@@ -17,6 +17,7 @@
 
 pub mod cavity;
 pub mod channel;
+pub mod corner;
 pub mod cube;
 pub mod dam_break;
 pub mod dam_break_3d;
