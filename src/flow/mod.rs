@@ -642,10 +642,15 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 particle: i,
             });
         }
-        self.singular_accel = accel;
-        self.projection.singular = Some(part);
-        self.projection
-            .check_singular(&self.particles.role, self.params.projection.source)
+        let before = self.projection.singular.replace(part);
+        let checked = self
+            .projection
+            .check_singular(&self.particles.role, self.params.projection.source);
+        match checked {
+            Ok(()) => self.singular_accel = accel,
+            Err(_) => self.projection.singular = before,
+        }
+        checked
     }
 
     /// The time step for the current state, and the limit that set it.

@@ -843,7 +843,6 @@ impl<const D: usize> ProjectionStep<D> {
         &self.band_phi
     }
 
-    /// Rejects band values that do not cover the particles or are not finite on the band.
     /// The singular part covers every particle (ghosts included), finite, with the sum-form
     /// source.
     pub(crate) fn check_singular(
@@ -879,6 +878,7 @@ impl<const D: usize> ProjectionStep<D> {
         Ok(())
     }
 
+    /// Rejects band values that do not cover the particles or are not finite on the band.
     fn check_band_increment(&self, role: &[Role]) -> Result<(), InputError> {
         let g = &self.band_phi;
         if g.is_empty() {
