@@ -2,9 +2,10 @@
 //!
 //! At a corner where a wall slides along itself at speed `U` and meets a wall at rest, the
 //! velocity jumps and no discretisation resolves the flow at the grid scale. The leading term
-//! of the flow there is Stokes flow in the corner (Taylor's scraper, Batchelor 1967 §4.8):
-//! with `ξ` along the lid away from the corner, `η` along the wall at rest and `(r, θ)` their
-//! polar coordinates (`θ = 0` the lid, `θ = π/2` the wall at rest), `ψ = r f(θ)`,
+//! of the flow there is Stokes flow in the corner (Taylor's scraping flow; Batchelor 1967,
+//! *An Introduction to Fluid Dynamics*): with `ξ` along the lid away from the corner, `η`
+//! along the wall at rest and `(r, θ)` their polar coordinates (`θ = 0` the lid, `θ = π/2` the
+//! wall at rest), `ψ = r f(θ)`,
 //!
 //! `f(θ) = A sin θ + C θ sin θ + D θ cos θ`, `D = U/(1 − π²/4)`, `C = Dπ/2`, `A = −Dπ²/4`,
 //!
