@@ -791,7 +791,7 @@ fn fill_from_sources_at<T: Copy + Send + Sync>(
 }
 
 /// The quintic step `S(t) = 6t⁵ − 15t⁴ + 10t³` on `t` clamped to `[0, 1]`.
-fn smooth_step(t: f64) -> f64 {
+pub(crate) fn smooth_step(t: f64) -> f64 {
     let t = t.clamp(0.0, 1.0);
     t * t * t * (10.0 + t * (6.0 * t - 15.0))
 }

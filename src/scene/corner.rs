@@ -147,12 +147,12 @@ fn continued(
                 } else {
                     let odd = no_slip(xs, v, walls);
                     let even = mirror(xs, v, walls);
-                    let t = if band > 0.0 {
-                        ((1.0 - xs[1]) / band).clamp(0.0, 1.0)
+                    // the boundary's own blend (no band: the no-slip images alone)
+                    let beta = if band > 0.0 {
+                        crate::boundary::smooth_step((1.0 - xs[1]) / band)
                     } else {
                         1.0
                     };
-                    let beta = t * t * t * (10.0 - 15.0 * t + 6.0 * t * t);
                     [0, 1].map(|a| beta * odd[a] + (1.0 - beta) * even[a])
                 }
             }
