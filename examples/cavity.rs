@@ -91,9 +91,11 @@ struct Args {
     average: Option<f64>,
     /// Continuation of the Poisson source into wall ghosts: auto (mirror for moving particles,
     /// rest-walls for fixed ones with the GPM operators, no-slip with the consistent ones),
-    /// mirror, no-slip, or rest-walls (no-slip images across the walls at rest, the mirror
+    /// mirror, no-slip, rest-walls (no-slip images across the walls at rest, the mirror
     /// across the lid and at its corners, the two blended within the scene key `source_band`,
-    /// ¼ side, of the lid). Before 2026-11-29 auto was the mirror on fixed particles too, with
+    /// ¼ side, of the lid), or rest-walls-linear (rest-walls with the lid's ghosts continued
+    /// linearly along the normal from their source and the particle below it; fixed
+    /// particles). Before 2026-11-29 auto was the mirror on fixed particles too, with
     /// h = 3Δx: `--source-ghosts mirror --h-ratio 3` reproduces those runs.
     #[arg(long, default_value = "auto")]
     source_ghosts: gpm::scene::cavity::SourceGhosts,

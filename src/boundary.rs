@@ -44,6 +44,19 @@ pub enum VectorKind {
     /// mirror's, but an order falling to 1.4 at n = 128 — a first-order term of another
     /// origin is left). Without positions ([`Boundary::fill_vector`]) no band applies.
     RestWalls,
+    /// [`VectorKind::RestWalls`], except that a ghost crossing one moving wall alone takes
+    /// its source's tangential components continued *linearly* along the wall's normal, from
+    /// the source `s` and the fluid particle `k` straight inward from it (`u_g = u_s + (u_s −
+    /// u_k) 2d_s/r_k`, `d_s` the source's distance from the wall, `r_k` the distance from `s`
+    /// to `k`; the normal component flipped as by the mirror). Exact for fields linear along
+    /// the normal, and it does not read the wall's speed, so nothing jumps at the wall's
+    /// corners; the mirror's even continuation has an error `2 d_s ∂u_t/∂n`, the first-order
+    /// term of the lid-driven cavity's error at Re 1000. The wall-normal partners need the
+    /// neighbour list: the boundary fills this rule like [`VectorKind::RestWalls`], and the
+    /// projection's source stage (`LinearGhosts` in `gpm::projection::stages`) continues the
+    /// moving wall's ghosts on top; it refuses a source without a partner straight inward
+    /// (particles not on a lattice aligned with the wall).
+    RestWallsLinear,
 }
 
 /// Boundary handling the projection step and the flow solver call into.
@@ -133,6 +146,14 @@ pub trait Boundary<const D: usize>: Send + Sync {
     fn velocity_affine(&self, walls: u8, x_src: &[f64; D]) -> ([f64; D], [f64; D]) {
         let _ = (walls, x_src);
         ([1.0; D], [0.0; D])
+    }
+    /// The axis of the wall and its inward sign (`+1`: the fluid at larger coordinates) when a
+    /// ghost crossing the walls in `walls` crossed exactly one wall and that wall moves
+    /// ([`VectorKind::RestWallsLinear`] continues those ghosts); `None` otherwise (and for
+    /// boundaries without walls).
+    fn single_moving_wall(&self, walls: u8) -> Option<(usize, f64)> {
+        let _ = walls;
+        None
     }
     /// Checks that the ghosts of `p` are those this boundary would make and place for an
     /// influence radius `h`: for [`Walls`], every ghost at the image of its source with its
@@ -471,6 +492,14 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         )
     }
 
+    fn single_moving_wall(&self, walls: u8) -> Option<(usize, f64)> {
+        if walls.count_ones() != 1 {
+            return None;
+        }
+        let w = self.walls.get(walls.trailing_zeros() as usize)?;
+        w.moves().then_some((w.axis, w.inward))
+    }
+
     fn periodicity(&self) -> Periodicity<D> {
         self.periodic
     }
@@ -501,12 +530,14 @@ impl<const D: usize> Boundary<D> for Walls<D> {
         fill_from_sources(role, v, |s, walls| match kind {
             VectorKind::Velocity => self.velocity_image(s, walls),
             VectorKind::Mirror => self.mirror_image(s, walls),
-            VectorKind::RestWalls => self.rest_walls_image(s, walls, None),
+            VectorKind::RestWalls | VectorKind::RestWallsLinear => {
+                self.rest_walls_image(s, walls, None)
+            }
         });
     }
 
     fn fill_vector_at(&self, x: &[[f64; D]], role: &[Role], v: &mut [[f64; D]], kind: VectorKind) {
-        if kind != VectorKind::RestWalls {
+        if !matches!(kind, VectorKind::RestWalls | VectorKind::RestWallsLinear) {
             return self.fill_vector(role, v, kind);
         }
         fill_from_sources_at(role, v, |s, src, walls| {

@@ -635,7 +635,6 @@ fn every_scene_runs_decomposed_like_one_process() {
 /// decomposition (its local simulations would run without it), naming the key.
 #[test]
 fn the_decomposition_refuses_a_subtracted_corner_singularity() {
-    use gpm::distributed::decomposed::DecomposedRun;
     let cfg = cavity::CavityConfig {
         flow: gpm::scene::FlowConfig {
             n: 16,
@@ -647,14 +646,37 @@ fn the_decomposition_refuses_a_subtracted_corner_singularity() {
             ..Default::default()
         },
     };
+    assert_decomposition_refuses(&cfg, &["corner_subtraction"]);
+}
+
+/// Two ranks decompose the cavity `cfg`: every rank's `DecomposedRun::new` errs, naming `keys`.
+fn assert_decomposition_refuses(cfg: &cavity::CavityConfig, keys: &[&str]) {
+    use gpm::distributed::decomposed::DecomposedRun;
     let errors = ThreadComm::run(2, |comm| {
-        let global = cavity::build(&cfg).unwrap();
+        let global = cavity::build(cfg).unwrap();
         DecomposedRun::new(comm, &global)
             .err()
             .map(|e| e.to_string())
     });
     for e in errors {
         let e = e.expect("refused");
-        assert!(e.contains("corner_subtraction"), "{e}");
+        assert!(keys.iter().all(|k| e.contains(k)), "{e}");
     }
+}
+
+/// A cavity with the rest-walls-linear source rule is refused by the particle decomposition
+/// (a rank does not hold every source's wall-normal partner), naming the key.
+#[test]
+fn the_decomposition_refuses_the_linear_lid_rule() {
+    let cfg = cavity::CavityConfig {
+        flow: gpm::scene::FlowConfig {
+            n: 16,
+            ..cavity::CavityConfig::default().flow
+        },
+        scene: cavity::Cavity {
+            source_ghosts: cavity::SourceGhosts::RestWallsLinear,
+            ..Default::default()
+        },
+    };
+    assert_decomposition_refuses(&cfg, &["source_ghosts", "rest_walls_linear"]);
 }

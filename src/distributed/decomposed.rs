@@ -177,6 +177,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
             )
             .into());
         }
+        if global.params.projection.source_ghosts == crate::boundary::VectorKind::RestWallsLinear {
+            return Err(InputError::parameter(
+                "source_ghosts",
+                0.0,
+                "the particle decomposition does not carry the rest_walls_linear rule's \
+                 wall-normal partners across ranks (run it on one process, or use rest_walls)",
+            )
+            .into());
+        }
         let moving = global.params.motion != Motion::Eulerian;
         let config = *global.nl.config();
         let layers = if moving {

@@ -768,6 +768,8 @@ pub struct ProjectionStep<const D: usize> {
     /// Dirichlet values of the increment on the band ([`Self::set_band_increment`]; empty:
     /// zero).
     band_phi: Vec<f64>,
+    /// The moving walls' ghost partners of [`VectorKind::RestWallsLinear`].
+    linear_ghosts: stages::LinearGhosts,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -1638,12 +1640,20 @@ impl<const D: usize> ProjectionStep<D> {
         // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band, except for the
         //    least-squares divergence)
         let t = Instant::now();
+        let linear = (ghosts && params.source_ghosts == VectorKind::RestWallsLinear)
+            .then_some(&mut self.linear_ghosts);
+        if let Some(l) = linear {
+            l.update(nl, &particles.x, role, boundary)?;
+        }
+        let linear =
+            (params.source_ghosts == VectorKind::RestWallsLinear).then_some(&self.linear_ghosts);
         let f = &mut self.work_vec2;
         stages::source_field(
             &particles.x,
             role,
             boundary,
             params.source_ghosts,
+            linear,
             plan.source,
             -rho / dt,
             &self.u_star,
@@ -1791,6 +1801,7 @@ impl<const D: usize> ProjectionStep<D> {
             role,
             boundary,
             params.source_ghosts,
+            (params.source_ghosts == VectorKind::RestWallsLinear).then_some(&self.linear_ghosts),
             plan.source,
             &mut self.gradient,
             &self.u_new,

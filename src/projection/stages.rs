@@ -19,7 +19,7 @@ use super::{ProjectionParams, Scheme, SourceKind};
 use crate::boundary::{Boundary, VectorKind};
 use crate::consistent::{div_renormalised_into, GradientOperator};
 use crate::diagnostics::{norm_l2, Region};
-use crate::error::SolveError;
+use crate::error::{InputError, SolveError};
 use crate::math::norm2;
 use crate::neighbors::NeighborList;
 use crate::operators::div_sum_into;
@@ -36,12 +36,17 @@ use rayon::prelude::*;
 /// `ghost_rule` is [`VectorKind::Mirror`] or [`VectorKind::RestWalls`], the ghosts are refilled
 /// by that rule (`x`: the positions, which [`VectorKind::RestWalls`]'s band reads; else they
 /// keep `scale` times the ghost values of `v`, which the caller filled by the no-slip rule).
+///
+/// With [`VectorKind::RestWallsLinear`], `linear` (brought up to date for this configuration by
+/// [`LinearGhosts::update`]) continues the moving walls' ghosts on top of the rest-walls fill;
+/// without it they keep the rest-walls values.
 #[allow(clippy::too_many_arguments)]
 pub fn source_field<const D: usize>(
     x: &[[f64; D]],
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
+    linear: Option<&LinearGhosts>,
     kind: SourceKind,
     scale: f64,
     v: &[[f64; D]],
@@ -60,9 +65,101 @@ pub fn source_field<const D: usize>(
     // the rule continues the velocity (an affine rule would not commute with the scaling)
     if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
         boundary.fill_vector_at(x, role, f, ghost_rule);
+        if let Some(l) = linear.filter(|_| ghost_rule == VectorKind::RestWallsLinear) {
+            l.apply(f);
+        }
     }
     if scale != 1.0 {
         f.par_iter_mut().for_each(|fi| *fi = fi.map(|c| scale * c));
+    }
+}
+
+/// The partners of [`VectorKind::RestWallsLinear`]: for every ghost `g` that crossed one
+/// moving wall alone (normal axis `a`), its source `s`, the fluid particle `k` straight inward
+/// from `s` (the nearest neighbour of `s` whose offset is along the normal, to `10⁻⁹ h`) and
+/// the ratio `2 d_s / r_k` of the ghost's and the partner's normal distances from `s`; the
+/// ghost's tangential components are `u_s + (u_s − u_k) 2d_s/r_k`, its normal one `−u_s`.
+/// Computed once per neighbour-list configuration (the epoch and the generation).
+#[derive(Clone, Debug, Default)]
+pub struct LinearGhosts {
+    key: Option<(u64, u64, usize)>,
+    /// `(ghost, source, partner, ratio, normal axis)`.
+    entries: Vec<(u32, u32, u32, f64, u8)>,
+}
+
+impl LinearGhosts {
+    /// Finds the partners for the configuration of `nl` (nothing to do when it is the last
+    /// one's). Errors naming the first source without a fluid neighbour straight inward.
+    pub fn update<const D: usize>(
+        &mut self,
+        nl: &NeighborList<D>,
+        x: &[[f64; D]],
+        role: &[Role],
+        boundary: &dyn Boundary<D>,
+    ) -> Result<(), InputError> {
+        let key = (nl.epoch(), nl.generation(), role.len());
+        if self.key == Some(key) {
+            return Ok(());
+        }
+        self.key = None;
+        self.entries.clear();
+        for (g, r) in role.iter().enumerate() {
+            let Role::Ghost { source, walls } = *r else {
+                continue;
+            };
+            let Some((axis, inward)) = boundary.single_moving_wall(walls) else {
+                continue;
+            };
+            let s = source as usize;
+            if s >= nl.len() {
+                continue;
+            }
+            // the nearest fluid neighbour of s along the inward normal
+            let mut best: Option<(usize, f64)> = None;
+            for k in nl.row(s) {
+                let j = nl.neighbor(k);
+                if !role[j].is_fluid() {
+                    continue;
+                }
+                let d = nl.dx()[k];
+                let along = inward * d[axis];
+                let lateral: f64 = (0..D).filter(|&b| b != axis).map(|b| d[b] * d[b]).sum();
+                let tol = 1e-9 * nl.h();
+                if along > tol && lateral.sqrt() <= tol && best.is_none_or(|(_, r)| along < r) {
+                    best = Some((j, along));
+                }
+            }
+            let Some((k, along)) = best else {
+                return Err(InputError::Ghost {
+                    particle: g,
+                    reason: format!(
+                        "the rest_walls_linear source rule continues it from its source {s} \
+                         and the fluid particle straight inward from {s} along the wall's \
+                         normal, and {s} has no such neighbour (the rule needs particles on \
+                         a lattice aligned with the moving wall; use rest_walls otherwise)"
+                    ),
+                });
+            };
+            let out = (x[g][axis] - x[s][axis]).abs();
+            self.entries
+                .push((g as u32, source, k as u32, out / along, axis as u8));
+        }
+        self.key = Some(key);
+        Ok(())
+    }
+
+    /// Continues the listed ghosts of `f` (filled by the rest-walls rule before).
+    pub fn apply<const D: usize>(&self, f: &mut [[f64; D]]) {
+        for &(g, s, k, ratio, axis) in &self.entries {
+            let (fs, fk) = (f[s as usize], f[k as usize]);
+            f[g as usize] = std::array::from_fn(|a| {
+                if a == axis as usize {
+                    -fs[a]
+                } else {
+                    fs[a] + (fs[a] - fk[a]) * ratio
+                }
+            });
+        }
     }
 }
 
@@ -271,6 +368,7 @@ pub fn measure_divergence<const D: usize>(
     role: &[Role],
     boundary: &dyn Boundary<D>,
     ghost_rule: VectorKind,
+    linear: Option<&LinearGhosts>,
     kind: SourceKind,
     ops: &mut GradientOperator<D>,
     v: &[[f64; D]],
@@ -278,7 +376,7 @@ pub fn measure_divergence<const D: usize>(
     work2: &mut Vec<[f64; D]>,
     div: &mut Vec<f64>,
 ) -> f64 {
-    source_field(x, role, boundary, ghost_rule, kind, 1.0, v, work);
+    source_field(x, role, boundary, ghost_rule, linear, kind, 1.0, v, work);
     divergence_into(
         nl, vol, x, role, boundary, ghost_rule, kind, ops, work, work2, div,
     );

@@ -1336,6 +1336,10 @@ pub enum GhostContinuation {
     /// (Files written before 2026-11-28 evening had the no-slip rule's mean at a moving wall's
     /// corners, and no band; they re-run with this rule.)
     RestWalls,
+    /// [`VectorKind::RestWallsLinear`]: [`GhostContinuation::RestWalls`] with the tangential
+    /// components across a moving wall continued linearly from the source and the particle
+    /// straight inward from it.
+    RestWallsLinear,
 }
 
 impl From<VectorKind> for GhostContinuation {
@@ -1344,6 +1348,7 @@ impl From<VectorKind> for GhostContinuation {
             VectorKind::Velocity => GhostContinuation::Velocity,
             VectorKind::Mirror => GhostContinuation::Mirror,
             VectorKind::RestWalls => GhostContinuation::RestWalls,
+            VectorKind::RestWallsLinear => GhostContinuation::RestWallsLinear,
         }
     }
 }
@@ -1354,6 +1359,7 @@ impl From<GhostContinuation> for VectorKind {
             GhostContinuation::Velocity => VectorKind::Velocity,
             GhostContinuation::Mirror => VectorKind::Mirror,
             GhostContinuation::RestWalls => VectorKind::RestWalls,
+            GhostContinuation::RestWallsLinear => VectorKind::RestWallsLinear,
         }
     }
 }

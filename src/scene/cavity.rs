@@ -234,6 +234,12 @@ pub enum SourceGhosts {
     /// corners, the two blended within [`Cavity::source_band`] of the lid
     /// ([`crate::boundary::VectorKind::RestWalls`]).
     RestWalls,
+    /// The rest-walls rule with the lid's ghosts continued linearly along the normal from
+    /// their source and the particle straight below it
+    /// ([`crate::boundary::VectorKind::RestWallsLinear`]; fixed particles only): exact for
+    /// fields linear across the lid, where the mirror's even continuation errs by
+    /// `2 d ∂u/∂y`.
+    RestWallsLinear,
 }
 
 impl std::str::FromStr for SourceGhosts {
@@ -244,8 +250,10 @@ impl std::str::FromStr for SourceGhosts {
             "mirror" => Ok(SourceGhosts::Mirror),
             "no_slip" | "noslip" => Ok(SourceGhosts::NoSlip),
             "rest_walls" => Ok(SourceGhosts::RestWalls),
+            "rest_walls_linear" => Ok(SourceGhosts::RestWallsLinear),
             _ => Err(format!(
-                "unknown source ghost rule '{s}': expected auto, mirror, no-slip or rest-walls"
+                "unknown source ghost rule '{s}': expected auto, mirror, no-slip, rest-walls \
+                 or rest-walls-linear"
             )),
         }
     }
@@ -285,6 +293,7 @@ impl SourceGhosts {
             SourceGhosts::Mirror => Some(crate::boundary::VectorKind::Mirror),
             SourceGhosts::NoSlip => Some(crate::boundary::VectorKind::Velocity),
             SourceGhosts::RestWalls => Some(crate::boundary::VectorKind::RestWalls),
+            SourceGhosts::RestWallsLinear => Some(crate::boundary::VectorKind::RestWallsLinear),
         }
     }
 }
@@ -318,6 +327,7 @@ impl SceneParams for Cavity {
 
     fn validate(&self, flow: &FlowConfig) -> Result<(), InputError> {
         validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)?;
+        validate_source_ghosts(self.source_ghosts, flow)?;
         if self.corner_subtraction {
             let reason = if self.lid_ramp > 0.0 {
                 Some("the singular part is the classic lid's: not with a lid ramp")
@@ -336,6 +346,21 @@ impl SceneParams for Cavity {
         }
         Ok(())
     }
+}
+
+/// The rest-walls-linear rule continues the lid's ghosts from the particle straight below each
+/// source: fixed particles only (moving ones are not on a lattice).
+pub fn validate_source_ghosts(rule: SourceGhosts, flow: &FlowConfig) -> Result<(), InputError> {
+    if rule == SourceGhosts::RestWallsLinear && flow.motion == crate::flow::Motion::Lagrangian {
+        return Err(InputError::Parameter {
+            name: "source_ghosts".into(),
+            value: f64::NAN,
+            reason: "rest_walls_linear needs fixed particles (the Eulerian frame): it \
+                     continues the lid's ghosts from the particle straight below each source"
+                .into(),
+        });
+    }
+    Ok(())
 }
 
 /// The keys the cavity and the cube share: a finite non-zero lid speed, a corner ramp of at
@@ -433,7 +458,10 @@ pub fn build_box<const D: usize>(
             wall.velocity[0] = lid;
             wall.ramp = lid_ramp;
             // the band is read by the rest-walls rule only (recorded with the walls)
-            if source_ghosts == SourceGhosts::RestWalls {
+            if matches!(
+                source_ghosts,
+                SourceGhosts::RestWalls | SourceGhosts::RestWallsLinear
+            ) {
                 wall.source_band = source_band;
             }
         }

@@ -141,7 +141,8 @@ fn continued(
         out[i] = match rule {
             VectorKind::Velocity => no_slip(xs, v, walls),
             VectorKind::Mirror => mirror(xs, v, walls),
-            VectorKind::RestWalls => {
+            // (install refuses the linear rule: its lid ghosts need the neighbour list)
+            VectorKind::RestWalls | VectorKind::RestWallsLinear => {
                 if walls & 0b1000 != 0 {
                     mirror(xs, v, walls)
                 } else {
@@ -194,6 +195,13 @@ pub fn install(sim: &mut Simulation<2, Walls<2>>, lid: f64, band: f64) -> Result
             "needs the sum-form source, not {:?}",
             params.projection.source
         )));
+    }
+    if params.projection.source_ghosts == VectorKind::RestWallsLinear {
+        return Err(bad(
+            "not with the rest_walls_linear source rule (the subtraction continues the \
+             singular part's ghosts without the neighbour list)"
+                .into(),
+        ));
     }
     if matches!(
         params.convection,

@@ -84,8 +84,9 @@ impl SceneParams for Cube {
         }
     }
 
-    fn validate(&self, _flow: &FlowConfig) -> Result<(), InputError> {
-        validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)
+    fn validate(&self, flow: &FlowConfig) -> Result<(), InputError> {
+        validate_lid_and_steady(self.lid, self.lid_ramp, self.source_band, &self.steady)?;
+        super::cavity::validate_source_ghosts(self.source_ghosts, flow)
     }
 }
 
