@@ -49,12 +49,15 @@ pub enum VectorKind {
     /// the source `s` and the fluid particle `k` straight inward from it (`u_g = u_s + (u_s −
     /// u_k) 2d_s/r_k`, `d_s` the source's distance from the wall, `r_k` the distance from `s`
     /// to `k`; the normal component flipped as by the mirror). Exact for fields linear along
-    /// the normal, and it does not read the wall's speed, so nothing jumps at the wall's
-    /// corners; the mirror's even continuation has an error `2 d_s ∂u_t/∂n`, the first-order
-    /// term of the lid-driven cavity's error at Re 1000. The wall-normal partners need the
-    /// neighbour list: the boundary fills this rule like [`VectorKind::RestWalls`], and the
-    /// projection's source stage (`LinearGhosts` in `gpm::projection::stages`) continues the
-    /// moving wall's ghosts on top; it refuses a source without a partner straight inward
+    /// the normal, where the mirror's even continuation errs by `2 d_s ∂u_t/∂n`, and it does
+    /// not read the wall's speed, so nothing jumps at the wall's corners. Measured on the
+    /// cavity (README): it changes the error's amplitude term only at second order — order 2
+    /// at Re 1000 up to n = 128, not beyond; at Re 100 up to twice the rest-walls rule's
+    /// error at n ≤ 64 — so it is an option, not a default. The wall-normal partners need
+    /// the neighbour list: the boundary fills this rule like [`VectorKind::RestWalls`], and
+    /// the projection's source stage (`LinearGhosts` in `gpm::projection::stages`) continues
+    /// the moving wall's ghosts of the source field on top (an adjoint-`Bᵀ` source's `Bᵀv`
+    /// keeps the rest-walls fill); it refuses a source without a partner straight inward
     /// (particles not on a lattice aligned with the wall).
     RestWallsLinear,
 }
