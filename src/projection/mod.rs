@@ -1640,20 +1640,18 @@ impl<const D: usize> ProjectionStep<D> {
         // 3. source D f with f = −(ρ/Δt) u* on Ω (zero on the Dirichlet band, except for the
         //    least-squares divergence)
         let t = Instant::now();
-        let linear = (ghosts && params.source_ghosts == VectorKind::RestWallsLinear)
-            .then_some(&mut self.linear_ghosts);
-        if let Some(l) = linear {
-            l.update(nl, &particles.x, role, boundary)?;
+        if ghosts && params.source_ghosts == VectorKind::RestWallsLinear {
+            self.linear_ghosts
+                .update(nl, &particles.x, role, boundary)?;
         }
-        let linear =
-            (params.source_ghosts == VectorKind::RestWallsLinear).then_some(&self.linear_ghosts);
         let f = &mut self.work_vec2;
+        // (source_field reads the partners only under the rest-walls-linear rule)
         stages::source_field(
             &particles.x,
             role,
             boundary,
             params.source_ghosts,
-            linear,
+            Some(&self.linear_ghosts),
             plan.source,
             -rho / dt,
             &self.u_star,
@@ -1801,7 +1799,7 @@ impl<const D: usize> ProjectionStep<D> {
             role,
             boundary,
             params.source_ghosts,
-            (params.source_ghosts == VectorKind::RestWallsLinear).then_some(&self.linear_ghosts),
+            Some(&self.linear_ghosts),
             plan.source,
             &mut self.gradient,
             &self.u_new,
