@@ -82,7 +82,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 8] = [
+const SWITCHES: [(&str, bool, &str); 9] = [
     (
         "skin",
         true,
@@ -117,6 +117,11 @@ const SWITCHES: [(&str, bool, &str); 8] = [
         "pattern_keep_pairs",
         true,
         "Poisson pattern (and its id) kept while the pairs within h hold",
+    ),
+    (
+        "keep_pressure_gradient",
+        true,
+        "trapezoidal term's ∇pⁿ⁺¹ taken with ∇φ in the correction's pass",
     ),
     (
         "pattern_reuse",
@@ -210,6 +215,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,
         Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
+        Some("keep_pressure_gradient") => {}
         Some(other) => bail!("unknown switch {other:?}"),
     }
     let moving = c.frame == "moving";
@@ -232,12 +238,11 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         dx,
     };
     let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, skin);
-    Ok(Simulation::new(
-        p,
-        PeriodicBox { periodic },
-        config,
-        params,
-    )?)
+    let mut sim = Simulation::new(p, PeriodicBox { periodic }, config, params)?;
+    if c.flip.as_deref() == Some("keep_pressure_gradient") {
+        sim.projection.keep_pressure_gradient = false;
+    }
+    Ok(sim)
 }
 
 /// The SpMV bandwidth of `a`, the bytes one SpMV moves (entries, column indices, three vectors)

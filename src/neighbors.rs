@@ -254,24 +254,37 @@ pub struct NeighborList<const D: usize> {
 /// pairs, so that a check that the list belongs to these positions costs `O(N)`, not a pass
 /// over every pair ([`NeighborList::measured_at`]).
 pub fn positions_hash<const D: usize>(x: &[[f64; D]]) -> u64 {
-    // FNV-1a within fixed chunks of 4 096 positions, the chunk hashes weighted by powers of an
+    bits_hash(x, |p| p.iter())
+}
+
+/// [`positions_hash`] of a scalar per particle (a pressure, a volume).
+pub fn values_hash(v: &[f64]) -> u64 {
+    bits_hash(v, std::slice::from_ref)
+}
+
+/// The hash of [`positions_hash`] over the numbers `each` gives of every item.
+fn bits_hash<'a, T: Sync, I: IntoIterator<Item = &'a f64>>(
+    items: &'a [T],
+    each: impl Fn(&'a T) -> I + Sync,
+) -> u64 {
+    // FNV-1a within fixed chunks of 4 096 items, the chunk hashes weighted by powers of an
     // odd constant by their index and added (wrapping): order-sensitive, the same for any
     // thread count, and no buffer of chunk hashes (a moving step allocates nothing)
     const PRIME: u64 = 0x100000001b3;
     const BASE: u64 = 0x9e3779b97f4a7c15;
     let fnv = |h: u64, v: u64| (h ^ v).wrapping_mul(PRIME);
-    let sum = x
+    let sum = items
         .par_chunks(4096)
         .enumerate()
         .map(|(c, ch)| {
             let h = ch
                 .iter()
-                .flatten()
+                .flat_map(&each)
                 .fold(0xcbf29ce484222325, |h, v| fnv(h, v.to_bits()));
             h.wrapping_mul(BASE.wrapping_pow(c as u32 + 1))
         })
         .reduce(|| 0, u64::wrapping_add);
-    fnv(fnv(0xcbf29ce484222325, x.len() as u64), sum)
+    fnv(fnv(0xcbf29ce484222325, items.len() as u64), sum)
 }
 
 impl<const D: usize> NeighborList<D> {
@@ -905,7 +918,7 @@ pub fn closest_pair<const D: usize>(
 }
 
 fn check_finite<const D: usize>(x: &[[f64; D]]) -> Result<(), InputError> {
-    if let Some(i) = x.par_iter().position_first(|p| !is_finite(p)) {
+    if let Some(i) = first_where(x.len(), |i| !is_finite(&x[i])) {
         return Err(InputError::NonFinite {
             field: "position",
             particle: i,

@@ -771,6 +771,76 @@ fn the_poisson_factor_prepared_beside_the_predictor_gives_the_same_run() {
     }
 }
 
+/// The trapezoidal term's `∇pⁿ` taken in the last correction's pass over the pairs
+/// (`keep_pressure_gradient`, on by default for moving particles) is the field the step would
+/// otherwise compute when it starts: a Lagrangian cavity (walls, so pressure ghosts) runs to
+/// the same bits with it on or off, and the gradient kept at the end equals, bit for bit, the
+/// one `pressure_gradient_into` takes of the final state; a changed pressure is not served.
+#[test]
+fn the_kept_pressure_gradient_gives_the_same_run() {
+    let cfg = CavityConfig::default().with(|c| {
+        c.n = 20;
+        c.motion = Motion::Lagrangian;
+        c.t_end = 0.5;
+        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
+    });
+    let bits = |v: &[[f64; 2]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let run = |keep: bool| {
+        let run = run_scene(
+            &cfg,
+            |sim| sim.projection.keep_pressure_gradient = keep,
+            |_, _| Ok(ControlFlow::Continue(())),
+        )
+        .expect("a short Lagrangian cavity run");
+        assert!(run.sim.steps >= 10, "{} steps", run.sim.steps);
+        run.sim
+    };
+    let off = run(false);
+    let mut on = run(true);
+    assert!(
+        bits(&off.particles.u) == bits(&on.particles.u),
+        "velocities differ"
+    );
+    assert!(
+        off.particles
+            .p
+            .iter()
+            .map(|x| x.to_bits())
+            .eq(on.particles.p.iter().map(|x| x.to_bits())),
+        "pressures differ"
+    );
+    let params = on.params.projection;
+    let mut fresh = Vec::new();
+    on.projection.pressure_gradient_into(
+        &mut on.particles,
+        &on.nl,
+        &on.boundary,
+        &params,
+        &mut fresh,
+    );
+    let mut kept = Vec::new();
+    assert!(
+        on.projection
+            .take_pressure_gradient(&on.particles, &on.nl, &params, &mut kept),
+        "no gradient kept"
+    );
+    assert_eq!(kept.len(), on.particles.len());
+    assert!(bits(&kept) == bits(&fresh), "the kept gradient differs");
+    // taken once; and a pressure changed since the projection is not served
+    assert!(!on
+        .projection
+        .take_pressure_gradient(&on.particles, &on.nl, &params, &mut kept));
+    let mut again = run(true);
+    again.particles.p[0] += 1.0;
+    let params = again.params.projection;
+    assert!(!again.projection.take_pressure_gradient(
+        &again.particles,
+        &again.nl,
+        &params,
+        &mut kept
+    ));
+}
+
 /// The ramped lid (`Wall::ramp`): a ghost across the lid alone carries `2 U S(d/δ) − u`, `S`
 /// the quintic smooth step of the distance `d` to the nearer side wall (written out here), a
 /// corner ghost is the ramp-free mean of the two orders, the implicit solves' affine rule agrees,

@@ -392,6 +392,8 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         if sim.params.motion == Motion::Lagrangian {
             sim.projection.solver.assume_moving();
             sim.projection.viscous.assume_moving();
+            // the next step's trapezoidal term reads ∇pⁿ⁺¹ of this configuration
+            sim.projection.keep_pressure_gradient = true;
         }
         sim.update_volumes()?;
         Ok(sim)
@@ -766,10 +768,17 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
         let trapezoid = lagrangian && self.params.projection.scheme != Scheme::NonIncremental;
         let mut grad_seconds = 0.0;
         if std::mem::take(&mut self.pressure_grad_due) && trapezoid {
-            // ∇pⁿ at xⁿ for the trapezoidal term (the correction's operators)
+            // ∇pⁿ at xⁿ for the trapezoidal term (the correction's operators): kept by the
+            // last projection when it can, else taken here
             let t = Instant::now();
             let mut g = std::mem::take(&mut self.old_pressure_grad);
-            self.pressure_gradient_into(&mut g);
+            let (p, nl, params) = (&self.particles, &self.nl, &self.params.projection);
+            if !self
+                .projection
+                .take_pressure_gradient(p, nl, params, &mut g)
+            {
+                self.pressure_gradient_into(&mut g);
+            }
             self.old_pressure_grad = g;
             grad_seconds = t.elapsed().as_secs_f64();
         } else {

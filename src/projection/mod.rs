@@ -668,6 +668,40 @@ impl WarmStart {
     }
 }
 
+/// What a kept `∇p/ρ` was taken from ([`ProjectionStep::keep_pressure_gradient`]): the
+/// neighbour list's epoch and generation (pairs, positions, ghosts), the bits of the pressure
+/// (ghosts filled) and of the volumes, and `ρ`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct KeptGradientKey {
+    epoch: u64,
+    generation: u64,
+    pressure: u64,
+    volumes: u64,
+    len: usize,
+    rho: u64,
+    gradient: GradientKind,
+}
+
+impl KeptGradientKey {
+    fn of<const D: usize>(
+        nl: &NeighborList<D>,
+        p: &[f64],
+        vol: &[f64],
+        rho: f64,
+        gradient: GradientKind,
+    ) -> Self {
+        KeptGradientKey {
+            gradient,
+            epoch: nl.epoch(),
+            generation: nl.generation(),
+            pressure: crate::neighbors::values_hash(p),
+            volumes: crate::neighbors::values_hash(vol),
+            len: p.len(),
+            rho: rho.to_bits(),
+        }
+    }
+}
+
 /// [`HaloSync::sync`] for a vector per particle.
 fn sync_vector<const D: usize>(h: &mut dyn HaloSync, values: &mut [[f64; D]]) {
     let mut flat: Vec<f64> = values.iter().flatten().copied().collect();
@@ -724,6 +758,17 @@ pub struct ProjectionStep<const D: usize> {
     /// does it; a Lagrangian loop that moves its particles between the two would waste the
     /// work). Default false.
     pub overlap_solve_setup: bool,
+    /// [`project`](Self::project) also takes `∇pⁿ⁺¹/ρ` of the corrected pressure on its
+    /// configuration, in the same pass over the pairs as `∇φ` (difference gradient only, not
+    /// in a decomposed run nor with pressure smoothing), for
+    /// [`take_pressure_gradient`](Self::take_pressure_gradient): a Lagrangian driver's next step
+    /// needs exactly that field for the trapezoidal pressure term before it moves the
+    /// particles. Bit for bit [`pressure_gradient_into`](Self::pressure_gradient_into) on the
+    /// same state. Default false (the [`crate::flow::Simulation`] sets it on moving
+    /// particles).
+    pub keep_pressure_gradient: bool,
+    /// That gradient and what it was taken from (`None`: nothing kept).
+    kept_pressure_gradient: (Vec<[f64; D]>, Option<KeptGradientKey>),
     /// The increment of the step before and that step's `Δt`: the warm start is the linear
     /// extrapolation in time of the last two increments, or the quadratic one of the last
     /// three (`warm`).
@@ -979,6 +1024,53 @@ impl<const D: usize> ProjectionStep<D> {
                 *v /= params.rho;
             }
         }
+    }
+
+    /// The pressure smoothing of the correction on `p_new` (its halo and ghosts refreshed
+    /// first).
+    #[allow(clippy::too_many_arguments)]
+    fn smooth_pressure(
+        halo: &mut Option<Box<dyn HaloSync>>,
+        p_new: &mut [f64],
+        nl: &NeighborList<D>,
+        vol: &[f64],
+        x: &[[f64; D]],
+        role: &[Role],
+        boundary: &dyn Boundary<D>,
+        params: &ProjectionParams<D>,
+    ) {
+        if let Some(h) = halo.as_mut() {
+            h.scalar(p_new);
+        }
+        if boundary.has_ghosts() {
+            boundary.fill_pressure(x, role, p_new, params.rho_g());
+        }
+        stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, p_new);
+    }
+
+    /// The `∇p/ρ` the last [`project`](Self::project) kept
+    /// ([`Self::keep_pressure_gradient`]), swapped into `out` when it is of this state — the
+    /// configuration of `nl`, the pressures, volumes and `ρ` as they were then — and the
+    /// gradient of `params` is the difference one; returns whether it was (`out` is left as
+    /// it was otherwise, and [`Self::pressure_gradient_into`] gives the same).
+    pub fn take_pressure_gradient(
+        &mut self,
+        particles: &Particles<D>,
+        nl: &NeighborList<D>,
+        params: &ProjectionParams<D>,
+        out: &mut Vec<[f64; D]>,
+    ) -> bool {
+        let Some(key) = self.kept_pressure_gradient.1.take() else {
+            return false;
+        };
+        if key.gradient != params.gradient
+            || key
+                != KeptGradientKey::of(nl, &particles.p, &particles.vol, params.rho, key.gradient)
+        {
+            return false;
+        }
+        std::mem::swap(out, &mut self.kept_pressure_gradient.0);
+        true
     }
 
     /// [`Self::pressure_gradient_into`] into a buffer of this step that the next
@@ -1725,7 +1817,13 @@ impl<const D: usize> ProjectionStep<D> {
         self.gradient.kind = params.gradient;
         self.gradient.share_walls = !boundary.has_ghosts();
         self.gradient.prepare(nl, vol);
-        self.gradient.apply_into(nl, vol, &self.phi, gphi);
+        // ∇pⁿ⁺¹ kept for the driver's next step: with ∇φ in one pass, once pⁿ⁺¹ is known
+        let keep = self.keep_pressure_gradient && self.halo.is_none();
+        let smoothing = params.pressure_smoothing > 0.0 && plan.pressure_gradient;
+        self.kept_pressure_gradient.1 = None;
+        if !keep {
+            self.gradient.apply_into(nl, vol, &self.phi, gphi);
+        }
         if plan.rotational {
             // the rotational term with the source's divergence (∇̂h· by default)
             let mut rot = std::mem::take(&mut self.work);
@@ -1749,25 +1847,43 @@ impl<const D: usize> ProjectionStep<D> {
         }
         self.u_new.clone_from(&particles.u);
         self.p_new.clone_from(&particles.p);
-        stages::correct(
-            role,
-            params,
-            dt,
-            &self.u_star,
-            &self.phi,
-            gphi,
-            &self.work,
-            &mut self.u_new,
-            &mut self.p_new,
-        );
-        if params.pressure_smoothing > 0.0 && plan.pressure_gradient {
-            if let Some(h) = self.halo.as_mut() {
-                h.scalar(&mut self.p_new);
+        if keep {
+            // the pressure first (it reads no gradient; smoothed, with its ghosts), then ∇φ
+            // and ∇pⁿ⁺¹ in one pass, the latter as `pressure_gradient_into` takes it
+            stages::update_pressure(role, params, &self.phi, &self.work, &mut self.p_new);
+            if smoothing {
+                let (x, halo) = (&particles.x, &mut self.halo);
+                Self::smooth_pressure(halo, &mut self.p_new, nl, vol, x, role, boundary, params);
             }
             if ghosts {
                 boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
             }
-            stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, &mut self.p_new);
+            let mut g = std::mem::take(&mut self.kept_pressure_gradient.0);
+            g.resize(n, [0.0; D]);
+            self.gradient
+                .apply2_into(nl, vol, &self.phi, &self.p_new, gphi, &mut g);
+            for v in g.iter_mut().flatten() {
+                *v /= rho;
+            }
+            let key = KeptGradientKey::of(nl, &self.p_new, vol, rho, params.gradient);
+            self.kept_pressure_gradient = (g, Some(key));
+            stages::correct_velocity(role, params, dt, &self.u_star, gphi, &mut self.u_new);
+        } else {
+            stages::correct(
+                role,
+                params,
+                dt,
+                &self.u_star,
+                &self.phi,
+                gphi,
+                &self.work,
+                &mut self.u_new,
+                &mut self.p_new,
+            );
+            if smoothing {
+                let (x, halo) = (&particles.x, &mut self.halo);
+                Self::smooth_pressure(halo, &mut self.p_new, nl, vol, x, role, boundary, params);
+            }
         }
         if ghosts {
             boundary.fill_velocity(&particles.x, role, &mut self.u_new);

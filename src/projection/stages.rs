@@ -235,23 +235,46 @@ pub fn correct<const D: usize>(
     u: &mut [[f64; D]],
     p: &mut [f64],
 ) {
-    let rho = params.rho;
-    let rot_nu = params.nu * params.viscous_theta;
-    let s = dt / rho;
+    correct_velocity(role, params, dt, u_star, gphi, u);
+    update_pressure(role, params, phi, rot_div, p);
+}
+
+/// The velocity half of [`correct`]: `u = u* − (Δt/ρ) ∇φ` at the fluid (and, with a free
+/// surface, the band's) particles.
+pub fn correct_velocity<const D: usize>(
+    role: &[Role],
+    params: &ProjectionParams<D>,
+    dt: f64,
+    u_star: &[[f64; D]],
+    gphi: &[[f64; D]],
+    u: &mut [[f64; D]],
+) {
+    let s = dt / params.rho;
     for i in 0..role.len() {
-        if params.free_surface && role[i] == Role::Dirichlet {
-            // a free-surface particle: corrected like the fluid; its pressure is the band's
-            // value (φ = 0 there), which the driver sets
+        // a free-surface particle is corrected like the fluid; its pressure is the band's
+        // value (φ = 0 there), which the driver sets
+        if role[i].is_fluid() || params.free_surface && role[i] == Role::Dirichlet {
             let (us, gp) = (u_star[i], gphi[i]);
             u[i] = std::array::from_fn(|k| us[k] - s * gp[k]);
-            continue;
         }
+    }
+}
+
+/// The pressure half of [`correct`] (it needs no gradient): `p` of the fluid particles
+/// updated by the scheme.
+pub fn update_pressure<const D: usize>(
+    role: &[Role],
+    params: &ProjectionParams<D>,
+    phi: &[f64],
+    rot_div: &[f64],
+    p: &mut [f64],
+) {
+    let rho = params.rho;
+    let rot_nu = params.nu * params.viscous_theta;
+    for i in 0..role.len() {
         if !role[i].is_fluid() {
             continue;
         }
-        let us = u_star[i];
-        let gp = gphi[i];
-        u[i] = std::array::from_fn(|k| us[k] - s * gp[k]);
         p[i] = match params.scheme {
             Scheme::NonIncremental => phi[i],
             Scheme::Incremental => p[i] + phi[i],
