@@ -266,12 +266,7 @@ fn the_viscous_solve_stops_at_its_own_tighter_tolerance() {
 /// counted), so no particle ever crosses a wall; the monitor sees `c0` change.
 #[test]
 fn lagrangian_cavity_particles_stay_inside_the_margin_and_c0_moves() {
-    let cfg = CavityConfig::default().with(|c| {
-        c.n = 16;
-        c.motion = Motion::Lagrangian;
-        c.t_end = 0.6;
-        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
-    });
+    let cfg = short_lagrangian_cavity(16, 0.6);
     let dx = cfg.dx();
     let mut c0 = Vec::new();
     let run = run_scene(
@@ -726,12 +721,7 @@ fn the_poisson_factor_prepared_beside_the_predictor_gives_the_same_run() {
     // (`overlap_solve_setup`); the projection must then use exactly that factor: the same bits
     // as a run that factorises inside the solve, and every step reports one numeric
     // factorisation (the work done ahead, not a reuse)
-    let cfg = CavityConfig::default().with(|c| {
-        c.n = 20;
-        c.motion = Motion::Lagrangian;
-        c.t_end = 0.5;
-        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
-    });
+    let cfg = short_lagrangian_cavity(20, 0.5);
     let run = |overlap: bool| {
         let mut infos = Vec::new();
         let run = run_scene(
@@ -778,12 +768,7 @@ fn the_poisson_factor_prepared_beside_the_predictor_gives_the_same_run() {
 /// one `pressure_gradient_into` takes of the final state; a changed pressure is not served.
 #[test]
 fn the_kept_pressure_gradient_gives_the_same_run() {
-    let cfg = CavityConfig::default().with(|c| {
-        c.n = 20;
-        c.motion = Motion::Lagrangian;
-        c.t_end = 0.5;
-        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
-    });
+    let cfg = short_lagrangian_cavity(20, 0.5);
     let bits = |v: &[[f64; 2]]| v.iter().flatten().map(|x| x.to_bits()).collect::<Vec<_>>();
     let run = |keep: bool| {
         let run = run_scene(
@@ -971,6 +956,14 @@ fn lagrangian_cavity(n: usize) -> CavityConfig {
     CavityConfig::default().with(|c| {
         c.n = n;
         c.motion = Motion::Lagrangian;
+    })
+}
+
+/// [`lagrangian_cavity`] run to `t_end` at the Lagrangian CFL number.
+fn short_lagrangian_cavity(n: usize, t_end: f64) -> CavityConfig {
+    lagrangian_cavity(n).with(|c| {
+        c.t_end = t_end;
+        c.limits.cfl = gpm::scene::cavity::LAGRANGIAN_CFL;
     })
 }
 
