@@ -758,9 +758,10 @@ pub struct ProjectionStep<const D: usize> {
     /// does it; a Lagrangian loop that moves its particles between the two would waste the
     /// work). Default false.
     pub overlap_solve_setup: bool,
-    /// [`project`](Self::project) also takes `∇pⁿ⁺¹/ρ` of the corrected pressure on its
-    /// configuration, in the same pass over the pairs as `∇φ` (difference gradient only, not
-    /// in a decomposed run nor with pressure smoothing), for
+    /// [`project`](Self::project) also takes `∇pⁿ⁺¹/ρ` of the corrected (and smoothed)
+    /// pressure on its configuration, in the same pass over the pairs as `∇φ` for the
+    /// difference and least-squares gradients (not in a decomposed run, whose halo pressures
+    /// are refreshed between steps), for
     /// [`take_pressure_gradient`](Self::take_pressure_gradient): a Lagrangian driver's next step
     /// needs exactly that field for the trapezoidal pressure term before it moves the
     /// particles. Bit for bit [`pressure_gradient_into`](Self::pressure_gradient_into) on the
@@ -1050,9 +1051,9 @@ impl<const D: usize> ProjectionStep<D> {
 
     /// The `∇p/ρ` the last [`project`](Self::project) kept
     /// ([`Self::keep_pressure_gradient`]), swapped into `out` when it is of this state — the
-    /// configuration of `nl`, the pressures, volumes and `ρ` as they were then — and the
-    /// gradient of `params` is the difference one; returns whether it was (`out` is left as
-    /// it was otherwise, and [`Self::pressure_gradient_into`] gives the same).
+    /// configuration of `nl`, the pressures, volumes and `ρ` as they were then, and the same
+    /// gradient in `params`; returns whether it was (`out` is left as it was otherwise, and
+    /// [`Self::pressure_gradient_into`] gives the same). Served once.
     pub fn take_pressure_gradient(
         &mut self,
         particles: &Particles<D>,
