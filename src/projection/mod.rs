@@ -702,6 +702,13 @@ impl KeptGradientKey {
     }
 }
 
+/// `g /= ρ`, every component (a pressure gradient into `∇p/ρ`).
+fn divide<const D: usize>(g: &mut [[f64; D]], rho: f64) {
+    for v in g.iter_mut().flatten() {
+        *v /= rho;
+    }
+}
+
 /// [`HaloSync::sync`] for a vector per particle.
 fn sync_vector<const D: usize>(h: &mut dyn HaloSync, values: &mut [[f64; D]]) {
     let mut flat: Vec<f64> = values.iter().flatten().copied().collect();
@@ -1020,33 +1027,7 @@ impl<const D: usize> ProjectionStep<D> {
         self.gradient.prepare(nl, &particles.vol);
         self.gradient
             .apply_into(nl, &particles.vol, &particles.p, out);
-        for g in out.iter_mut() {
-            for v in g.iter_mut() {
-                *v /= params.rho;
-            }
-        }
-    }
-
-    /// The pressure smoothing of the correction on `p_new` (its halo and ghosts refreshed
-    /// first).
-    #[allow(clippy::too_many_arguments)]
-    fn smooth_pressure(
-        halo: &mut Option<Box<dyn HaloSync>>,
-        p_new: &mut [f64],
-        nl: &NeighborList<D>,
-        vol: &[f64],
-        x: &[[f64; D]],
-        role: &[Role],
-        boundary: &dyn Boundary<D>,
-        params: &ProjectionParams<D>,
-    ) {
-        if let Some(h) = halo.as_mut() {
-            h.scalar(p_new);
-        }
-        if boundary.has_ghosts() {
-            boundary.fill_pressure(x, role, p_new, params.rho_g());
-        }
-        stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, p_new);
+        divide(out, params.rho);
     }
 
     /// The `∇p/ρ` the last [`project`](Self::project) kept
@@ -1064,9 +1045,14 @@ impl<const D: usize> ProjectionStep<D> {
         let Some(key) = self.kept_pressure_gradient.1.take() else {
             return false;
         };
-        if key.gradient != params.gradient
-            || key
-                != KeptGradientKey::of(nl, &particles.p, &particles.vol, params.rho, key.gradient)
+        if key
+            != KeptGradientKey::of(
+                nl,
+                &particles.p,
+                &particles.vol,
+                params.rho,
+                params.gradient,
+            )
         {
             return false;
         }
@@ -1818,13 +1804,6 @@ impl<const D: usize> ProjectionStep<D> {
         self.gradient.kind = params.gradient;
         self.gradient.share_walls = !boundary.has_ghosts();
         self.gradient.prepare(nl, vol);
-        // ∇pⁿ⁺¹ kept for the driver's next step: with ∇φ in one pass, once pⁿ⁺¹ is known
-        let keep = self.keep_pressure_gradient && self.halo.is_none();
-        let smoothing = params.pressure_smoothing > 0.0 && plan.pressure_gradient;
-        self.kept_pressure_gradient.1 = None;
-        if !keep {
-            self.gradient.apply_into(nl, vol, &self.phi, gphi);
-        }
         if plan.rotational {
             // the rotational term with the source's divergence (∇̂h· by default)
             let mut rot = std::mem::take(&mut self.work);
@@ -1848,14 +1827,21 @@ impl<const D: usize> ProjectionStep<D> {
         }
         self.u_new.clone_from(&particles.u);
         self.p_new.clone_from(&particles.p);
-        if keep {
-            // the pressure first (it reads no gradient; smoothed, with its ghosts), then ∇φ
-            // and ∇pⁿ⁺¹ in one pass, the latter as `pressure_gradient_into` takes it
-            stages::update_pressure(role, params, &self.phi, &self.work, &mut self.p_new);
-            if smoothing {
-                let (x, halo) = (&particles.x, &mut self.halo);
-                Self::smooth_pressure(halo, &mut self.p_new, nl, vol, x, role, boundary, params);
+        // the pressure first (it reads no gradient; smoothed), then ∇φ — with ∇pⁿ⁺¹ in the
+        // same pass, as `pressure_gradient_into` takes it, when it is kept for the driver's
+        // next step — and the velocity
+        stages::update_pressure(role, params, &self.phi, &self.work, &mut self.p_new);
+        if params.pressure_smoothing > 0.0 && plan.pressure_gradient {
+            if let Some(h) = self.halo.as_mut() {
+                h.scalar(&mut self.p_new);
             }
+            if ghosts {
+                boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
+            }
+            stages::smooth_pressure(nl, vol, role, params.pressure_smoothing, &mut self.p_new);
+        }
+        self.kept_pressure_gradient.1 = None;
+        if self.keep_pressure_gradient && self.halo.is_none() {
             if ghosts {
                 boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
             }
@@ -1863,29 +1849,13 @@ impl<const D: usize> ProjectionStep<D> {
             g.resize(n, [0.0; D]);
             self.gradient
                 .apply2_into(nl, vol, &self.phi, &self.p_new, gphi, &mut g);
-            for v in g.iter_mut().flatten() {
-                *v /= rho;
-            }
+            divide(&mut g, rho);
             let key = KeptGradientKey::of(nl, &self.p_new, vol, rho, params.gradient);
             self.kept_pressure_gradient = (g, Some(key));
-            stages::correct_velocity(role, params, dt, &self.u_star, gphi, &mut self.u_new);
         } else {
-            stages::correct(
-                role,
-                params,
-                dt,
-                &self.u_star,
-                &self.phi,
-                gphi,
-                &self.work,
-                &mut self.u_new,
-                &mut self.p_new,
-            );
-            if smoothing {
-                let (x, halo) = (&particles.x, &mut self.halo);
-                Self::smooth_pressure(halo, &mut self.p_new, nl, vol, x, role, boundary, params);
-            }
+            self.gradient.apply_into(nl, vol, &self.phi, gphi);
         }
+        stages::correct_velocity(role, params, dt, &self.u_star, gphi, &mut self.u_new);
         if ghosts {
             boundary.fill_velocity(&particles.x, role, &mut self.u_new);
             boundary.fill_pressure(&particles.x, role, &mut self.p_new, params.rho_g());
