@@ -628,3 +628,66 @@ fn rerun_honours_every_projection_parameter() {
     let changed = gpm::record::rerun::rerun_input(&m).unwrap();
     assert!(!changed.identical && changed.max_dphi > 0.0);
 }
+
+/// A run with the lid corners' singular flow subtracted records that part with each projection
+/// input and re-runs bit for bit; the same input without it projects a different field, and
+/// half of it recorded is refused by name.
+#[test]
+fn rerun_takes_the_recorded_singular_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("corner.mcap");
+    let cfg = cavity_config(Motion::Eulerian).with(|c| c.scene.corner_subtraction = true);
+    let mut sim = cavity::build(&cfg).unwrap();
+    assert!(sim.projection.singular.is_some());
+    sim.projection.capture = true;
+    let mut rec = Recorder::create(&path, RecordLevel::Full, 2, &serde_json::json!({})).unwrap();
+    for _ in 0..4 {
+        let r = sim.advance().unwrap();
+        rec.write_step(&r, &sim).unwrap();
+    }
+    rec.finish().unwrap();
+    let r = rerun_file(&path, |_, _| {}).unwrap();
+    assert_eq!(r.steps.len(), 2);
+    assert_eq!(r.identical(), 2, "{:?}", r.steps);
+    let mut first = None;
+    scan(
+        &path,
+        |m| {
+            if m.topic == TOPIC_PROJECTION && first.is_none() {
+                first = Some(m.decode::<ProjectionInput>()?);
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    let m = first.unwrap();
+    let singular = sim.projection.singular.as_ref().unwrap();
+    assert_eq!(
+        m.singular_source
+            .as_ref()
+            .unwrap()
+            .to_vectors::<2>("s")
+            .unwrap(),
+        singular.source
+    );
+    assert_eq!(
+        m.singular_no_slip
+            .as_ref()
+            .unwrap()
+            .to_vectors::<2>("s")
+            .unwrap(),
+        singular.no_slip
+    );
+    let mut without = m.clone();
+    without.singular_source = None;
+    without.singular_no_slip = None;
+    let changed = gpm::record::rerun::rerun_input(&without).unwrap();
+    assert!(!changed.identical && changed.rel_dp > 1e-3, "{changed:?}");
+    let mut half = m.clone();
+    half.singular_no_slip = None;
+    let err = gpm::record::rerun::rerun_input(&half)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("singular_no_slip"), "{err}");
+}

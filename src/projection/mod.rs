@@ -507,6 +507,9 @@ pub struct ProjectionCapture<const D: usize> {
     pub p_out: Vec<f64>,
     /// Increment `φ`.
     pub phi: Vec<f64>,
+    /// The steady singular part the projection left out ([`ProjectionStep::singular`];
+    /// `None`: none): a re-run without it would project a different field.
+    pub singular: Option<SingularPart<D>>,
 }
 
 /// Brings the copies a rank holds of other ranks' particles up to date (the particle
@@ -1713,6 +1716,7 @@ impl<const D: usize> ProjectionStep<D> {
                 v
             },
             dt,
+            singular: self.singular.clone(),
             ..Default::default()
         });
 

@@ -355,6 +355,7 @@ impl<const D: usize> ProjectionRecord<'_, D> {
             u_out,
             p_out,
             phi,
+            singular,
         } = self.capture;
         let (role_kind, ghost_source, ghost_walls) = encode_roles(role);
         ProjectionInput {
@@ -378,6 +379,8 @@ impl<const D: usize> ProjectionRecord<'_, D> {
             u_out: Array::from_vectors(u_out),
             p_out: Array::from_f64(p_out),
             phi: Array::from_f64(phi),
+            singular_source: singular.as_ref().map(|s| Array::from_vectors(&s.source)),
+            singular_no_slip: singular.as_ref().map(|s| Array::from_vectors(&s.no_slip)),
         }
     }
 }

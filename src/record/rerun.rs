@@ -5,8 +5,9 @@
 //! is a typed error, never a panic), rebuild the neighbour list from the recorded positions
 //! and [`NeighborSpec`](super::schema::NeighborSpec), the boundary from its
 //! [`BoundarySpec`](super::schema::BoundarySpec), set the particles (positions, volumes, roles,
-//! `p = pⁿ`) and `u*`, call [`ProjectionStep::project`] with a fresh step, and compare `u`, `p`
-//! and `φ` with the recorded outputs.
+//! `p = pⁿ`) and `u*`, give a fresh step the recorded singular part when there is one (the
+//! lid corners' subtracted flow, [`ProjectionStep::singular`]), call
+//! [`ProjectionStep::project`], and compare `u`, `p` and `φ` with the recorded outputs.
 //!
 //! **When the results are identical, and when not.** With the Cholesky solver (the default in
 //! 2D) every stage is deterministic and independent of the thread count: operators sum each row
@@ -26,7 +27,7 @@ use super::schema::{decode_roles, ProjectionInput, TOPIC_PROJECTION};
 use super::RecordError;
 use crate::neighbors::NeighborList;
 use crate::particles::Particles;
-use crate::projection::{checks, ProjectionStep};
+use crate::projection::{checks, ProjectionStep, SingularPart};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -115,6 +116,29 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     let u_out = m.u_out.to_vectors::<D>("u_out")?;
     let p_out = m.p_out.to_f64("p_out")?;
     let phi = m.phi.to_f64("phi")?;
+    let singular = match (&m.singular_source, &m.singular_no_slip) {
+        (None, None) => None,
+        (Some(source), Some(no_slip)) => Some(SingularPart {
+            source: source.to_vectors::<D>("singular_source")?,
+            no_slip: no_slip.to_vectors::<D>("singular_no_slip")?,
+        }),
+        (source, _) => {
+            return Err(RecordError::Spec {
+                what: if source.is_some() {
+                    "singular_no_slip"
+                } else {
+                    "singular_source"
+                },
+                reason: "missing: the singular part is recorded in both continuations or in \
+                         neither"
+                    .into(),
+            }
+            .into())
+        }
+    };
+    let singular_len = |which: fn(&SingularPart<D>) -> &Vec<[f64; D]>| {
+        singular.as_ref().map_or(n, |s| which(s).len())
+    };
     for (what, len) in [
         ("vol", vol.len()),
         ("roles", role.len()),
@@ -124,6 +148,8 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
         ("u_out", u_out.len()),
         ("p_out", p_out.len()),
         ("phi", phi.len()),
+        ("singular_source", singular_len(|s| &s.source)),
+        ("singular_no_slip", singular_len(|s| &s.no_slip)),
     ] {
         if len != n {
             return Err(RecordError::Spec {
@@ -148,6 +174,7 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
     let nl = NeighborList::build(config, &x)?;
     let mut step = ProjectionStep::<D>::new();
     step.phi = phi_in;
+    step.singular = singular;
     step.project(
         &mut particles,
         &nl,
