@@ -5,7 +5,7 @@ use gpm::boundary::Walls;
 use gpm::flow::{FlowReport, Motion, Simulation};
 use gpm::projection::ProjectionCapture;
 use gpm::record::replay::{export_vtk, scan, Replay};
-use gpm::record::rerun::rerun_file;
+use gpm::record::rerun::{rerun_file, RerunReport};
 use gpm::record::schema::{
     decode_roles, PointCloud, ProjectionInput, StepDiagnostics, TOPIC_CONFIG, TOPIC_DIAGNOSTICS,
     TOPIC_PARTICLES, TOPIC_PROJECTION,
@@ -585,6 +585,41 @@ fn run_command_line() {
     );
 }
 
+/// `steps` steps of `sim` recorded in full every `k` steps (its projection captured), and the
+/// re-run of the file.
+fn record_full_and_rerun(
+    sim: &mut Simulation<2, Walls<2>>,
+    path: &Path,
+    k: u64,
+    steps: usize,
+) -> RerunReport {
+    sim.projection.capture = true;
+    let mut rec = Recorder::create(path, RecordLevel::Full, k, &serde_json::json!({})).unwrap();
+    for _ in 0..steps {
+        let r = sim.advance().unwrap();
+        rec.write_step(&r, sim).unwrap();
+    }
+    rec.finish().unwrap();
+    rerun_file(path, |_, _| {}).unwrap()
+}
+
+/// The first `/projection_input` of the file at `path`.
+fn first_projection_input(path: &Path) -> ProjectionInput {
+    let mut first = None;
+    scan(
+        path,
+        |m| {
+            if m.topic == TOPIC_PROJECTION && first.is_none() {
+                first = Some(m.decode::<ProjectionInput>()?);
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    first.expect("a recorded projection input")
+}
+
 /// Every projection parameter is recorded: a run with non-default ones re-runs bit for bit.
 #[test]
 fn rerun_honours_every_projection_parameter() {
@@ -600,30 +635,11 @@ fn rerun_honours_every_projection_parameter() {
     p.viscous_theta = 1.0;
     p.source_ghosts = VectorKind::Velocity;
     p.solve.reuse_numeric = false;
-    sim.projection.capture = true;
-    let mut rec = Recorder::create(&path, RecordLevel::Full, 1, &serde_json::json!({})).unwrap();
-    for _ in 0..3 {
-        let r = sim.advance().unwrap();
-        rec.write_step(&r, &sim).unwrap();
-    }
-    rec.finish().unwrap();
-    let r = rerun_file(&path, |_, _| {}).unwrap();
+    let r = record_full_and_rerun(&mut sim, &path, 1, 3);
     assert_eq!(r.steps.len(), 3);
     assert_eq!(r.identical(), 3, "{:?}", r.steps);
     // and the default (mirror) continuation gives a different answer on the same input
-    let mut first = None;
-    scan(
-        &path,
-        |m| {
-            if m.topic == TOPIC_PROJECTION && first.is_none() {
-                first = Some(m.decode::<ProjectionInput>()?);
-            }
-            Ok(())
-        },
-        |_, _| {},
-    )
-    .unwrap();
-    let mut m = first.unwrap();
+    let mut m = first_projection_input(&path);
     m.params.source_ghosts = gpm::record::schema::GhostContinuation::Mirror;
     let changed = gpm::record::rerun::rerun_input(&m).unwrap();
     assert!(!changed.identical && changed.max_dphi > 0.0);
@@ -639,29 +655,10 @@ fn rerun_takes_the_recorded_singular_part() {
     let cfg = cavity_config(Motion::Eulerian).with(|c| c.scene.corner_subtraction = true);
     let mut sim = cavity::build(&cfg).unwrap();
     assert!(sim.projection.singular.is_some());
-    sim.projection.capture = true;
-    let mut rec = Recorder::create(&path, RecordLevel::Full, 2, &serde_json::json!({})).unwrap();
-    for _ in 0..4 {
-        let r = sim.advance().unwrap();
-        rec.write_step(&r, &sim).unwrap();
-    }
-    rec.finish().unwrap();
-    let r = rerun_file(&path, |_, _| {}).unwrap();
+    let r = record_full_and_rerun(&mut sim, &path, 2, 4);
     assert_eq!(r.steps.len(), 2);
     assert_eq!(r.identical(), 2, "{:?}", r.steps);
-    let mut first = None;
-    scan(
-        &path,
-        |m| {
-            if m.topic == TOPIC_PROJECTION && first.is_none() {
-                first = Some(m.decode::<ProjectionInput>()?);
-            }
-            Ok(())
-        },
-        |_, _| {},
-    )
-    .unwrap();
-    let m = first.unwrap();
+    let m = first_projection_input(&path);
     let singular = sim.projection.singular.as_ref().unwrap();
     assert_eq!(
         m.singular_source
