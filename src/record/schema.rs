@@ -1479,12 +1479,12 @@ pub struct ProjectionInput {
     pub phi: Array,
     /// The steady singular part the projection left out (the lid corners' subtracted flow,
     /// `gpm::scene::corner`), continued into the ghosts like the source `[n, D]`; absent when
-    /// there is none (and in files written before 2026-11-30).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// there is none (`null`; missing in files written before 2026-11-30).
+    #[serde(default)]
     pub singular_source: Option<Array>,
     /// The same singular part continued into the ghosts by the no-slip rule `[n, D]`; present
     /// exactly when `singular_source` is.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub singular_no_slip: Option<Array>,
 }
 
