@@ -136,9 +136,9 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
             .into())
         }
     };
-    let singular_len = |which: fn(&SingularPart<D>) -> &Vec<[f64; D]>| {
-        singular.as_ref().map_or(n, |s| which(s).len())
-    };
+    let (source_len, no_slip_len) = singular
+        .as_ref()
+        .map_or((n, n), |s| (s.source.len(), s.no_slip.len()));
     for (what, len) in [
         ("vol", vol.len()),
         ("roles", role.len()),
@@ -148,8 +148,8 @@ fn rerun_d<const D: usize>(m: &ProjectionInput) -> Result<RerunStep, crate::Erro
         ("u_out", u_out.len()),
         ("p_out", p_out.len()),
         ("phi", phi.len()),
-        ("singular_source", singular_len(|s| &s.source)),
-        ("singular_no_slip", singular_len(|s| &s.no_slip)),
+        ("singular_source", source_len),
+        ("singular_no_slip", no_slip_len),
     ] {
         if len != n {
             return Err(RecordError::Spec {

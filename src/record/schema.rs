@@ -1478,8 +1478,8 @@ pub struct ProjectionInput {
     /// Increment `φ` `[n]`.
     pub phi: Array,
     /// The steady singular part the projection left out (the lid corners' subtracted flow,
-    /// `gpm::scene::corner`), continued into the ghosts like the source `[n, D]`; absent when
-    /// there is none (`null`; missing in files written before 2026-11-30).
+    /// `gpm::scene::corner`), continued into the ghosts like the source `[n, D]`; `null` when
+    /// there is none (missing in files written before 2026-11-30).
     #[serde(default)]
     pub singular_source: Option<Array>,
     /// The same singular part continued into the ghosts by the no-slip rule `[n, D]`; present
