@@ -1063,22 +1063,18 @@ impl<const D: usize> LsOperators<D> {
         self.partner.clear();
         let mut shift = Vec::new();
         if let (true, Some((x, role))) = (self.walls, geometry) {
-            self.partner.reserve(end);
-            shift.reserve(end);
-            for k in 0..end {
+            // (per pair of the list's arrays: the room between regions of rows holds none)
+            self.partner.resize(end, u32::MAX);
+            shift.resize(end, [0.0; D]);
+            for k in (0..rows).flat_map(|i| nl.row(i)) {
                 let j = nl.indices()[k] as usize;
                 match role[j] {
                     crate::particles::Role::Ghost { source, .. } => {
                         let s = source as usize;
-                        self.partner.push(source);
-                        shift.push(std::array::from_fn::<f64, D, _>(|c| {
-                            0.5 * (x[j][c] - x[s][c])
-                        }));
+                        self.partner[k] = source;
+                        shift[k] = std::array::from_fn::<f64, D, _>(|c| 0.5 * (x[j][c] - x[s][c]));
                     }
-                    _ => {
-                        self.partner.push(j as u32);
-                        shift.push([0.0; D]);
-                    }
+                    _ => self.partner[k] = j as u32,
                 }
             }
         }

@@ -401,7 +401,10 @@ impl<const D: usize> MomentWeights<D> {
             rep.factor_max = rep.factor_max.max(*f);
         }
         if let Some(k) = factors.iter().position(|f| !f.is_finite()) {
-            let i = nl.offsets().partition_point(|&o| o <= k).saturating_sub(1);
+            let i = nl
+                .pair_offsets()
+                .partition_point(|&o| o <= k)
+                .saturating_sub(1);
             return Err(PairWeightError::NonFinite { particle: i }.into());
         }
         let t = target(m, D);

@@ -1273,7 +1273,7 @@ fn the_within_h_pattern_holds_the_candidate_patterns_nonzero_entries_bit_for_bit
     // diagonal inserted into the neighbours' sorted row) against K on the candidate pattern
     // (skin pairs stored as zeros, rows filled by `fill`): the same nonzero entries, the same
     // bits — on a box with wall images (rows re-sorted) and on a periodic lattice (every
-    // particle a fluid unknown: the rows written in place at `nl.offsets()[u] + u`)
+    // particle a fluid unknown: the rows written in place, each after the rows before it)
     let periodic = jittered_periodic(20, 0.1);
     let (walled, walled_nl, _) = walled_box(false);
     for (name, p, nl) in [

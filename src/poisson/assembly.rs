@@ -577,7 +577,7 @@ impl Assembly {
     /// [`Self::update_with_values`] when every particle is a fluid unknown (numbered in
     /// particle order, no ghosts, no band — a periodic box): row `u` is then the neighbour
     /// list's row `u` (sorted, no repeats) with the diagonal inserted, so its place in the
-    /// matrix is known before it is filled (`offsets[u] = nl.offsets()[u] + u`) and the rows
+    /// matrix is known before it is filled (`offsets[u]` = the rows before it and `u`) and the rows
     /// are written in place, in parallel, without the general path's per-chunk rows and their
     /// copy. The same entries, values and sums in the same order (the same bits). Returns
     /// `c0` (the largest row sum `Σ_j ω_j w_ij`, summed in the same pass) and Gershgorin's
@@ -592,13 +592,17 @@ impl Assembly {
         c: f64,
     ) -> Option<(f64, f64)> {
         let n = self.particle.len();
-        let nlo = nl.offsets();
-        if nlo.len() != n + 1 {
+        if nl.len() != n {
             return None;
         }
+        // each row its pairs and the diagonal
         self.offsets.clear();
-        self.offsets.extend((0..=n).map(|u| nlo[u] + u));
-        let m = nlo[n] + n;
+        self.offsets.push(0);
+        let mut m = 0;
+        for u in 0..n {
+            m += nl.row(u).len() + 1;
+            self.offsets.push(m);
+        }
         self.cols.resize(m, 0);
         self.values.resize(m, 0.0);
         self.diag.resize(n, 0);
