@@ -727,7 +727,7 @@ pub enum SphGradient {
 /// `∇_iW_ij ω_j` of pair `k`: `−w_h'(r) x_ji / r · ω_j`.
 #[inline]
 fn grad_w<const D: usize>(nl: &NeighborList<D>, vol: &[f64], k: usize, j: usize) -> [f64; D] {
-    let r = nl.r2()[k].sqrt();
+    let r = nl.r2(k).sqrt();
     let c = -nl.kernel().dw_h(r) / r * vol[j];
     std::array::from_fn(|a| c * nl.dx()[k][a])
 }
@@ -810,7 +810,7 @@ pub fn sph_laplacian_brookshaw<const D: usize>(
             let mut s = 0.0;
             for k in nl.row(i) {
                 let j = nl.indices()[k] as usize;
-                let r = nl.r2()[k].sqrt();
+                let r = nl.r2(k).sqrt();
                 s += vol[j] * (phi[j] - phi[i]) * kernel.dw_h(r) / r;
             }
             -2.0 * s

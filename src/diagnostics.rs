@@ -481,8 +481,8 @@ pub fn neighbor_stats<const D: usize>(nl: &NeighborList<D>, role: &[Role]) -> Ne
         total += m;
         count += 1;
         for k in r {
-            if nl.r2()[k] < best {
-                best = nl.r2()[k];
+            if nl.r2(k) < best {
+                best = nl.r2(k);
                 s.closest_pair = Some((i, nl.indices()[k] as usize));
             }
         }

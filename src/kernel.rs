@@ -245,6 +245,18 @@ impl<const D: usize> Kernel<D> {
         }
     }
 
+    /// [`w_and_wr2`](Self::w_and_wr2) with the squared distances in `w` on entry, replaced
+    /// by the weights (the same bits): the neighbour list's measure writes each pair's `r²`
+    /// there and keeps no array of them.
+    pub fn w_and_wr2_in_place(&self, w: &mut [f64], wr2: &mut [f64]) {
+        match self.weight {
+            Weight::CubicSpline => self.w_and_wr2_in(w, wr2, |r| Weight::CubicSpline.shape(r)),
+            Weight::WendlandC2 => self.w_and_wr2_in(w, wr2, |r| Weight::WendlandC2.shape(r)),
+            Weight::WendlandC4 => self.w_and_wr2_in(w, wr2, |r| Weight::WendlandC4.shape(r)),
+            poly => self.w_and_wr2_in(w, wr2, |r| poly.shape(r)),
+        }
+    }
+
     #[inline(always)]
     fn w_and_wr2_with(
         &self,
@@ -254,10 +266,22 @@ impl<const D: usize> Kernel<D> {
         shape: impl Fn(f64) -> f64,
     ) {
         for ((&q, wv), wq) in rr.iter().zip(w.iter_mut()).zip(wr2.iter_mut()) {
-            let v = self.shape_at(q.sqrt(), &shape);
-            *wv = v;
-            *wq = if q > 0.0 { v / q } else { f64::INFINITY };
+            (*wv, *wq) = self.w_and_over(q, &shape);
         }
+    }
+
+    #[inline(always)]
+    fn w_and_wr2_in(&self, w: &mut [f64], wr2: &mut [f64], shape: impl Fn(f64) -> f64) {
+        for (wv, wq) in w.iter_mut().zip(wr2.iter_mut()) {
+            (*wv, *wq) = self.w_and_over(*wv, &shape);
+        }
+    }
+
+    /// `(w_h(√q), w_h(√q)/q)`, `∞` for the second at `q = 0`.
+    #[inline(always)]
+    fn w_and_over(&self, q: f64, shape: impl Fn(f64) -> f64) -> (f64, f64) {
+        let v = self.shape_at(q.sqrt(), &shape);
+        (v, if q > 0.0 { v / q } else { f64::INFINITY })
     }
     /// `dw_h/dr (r)`.
     #[inline]

@@ -4,8 +4,9 @@
 //! in one pass; [`NeighborList::row`] gives a row's range.
 //!
 //! The list holds, for each particle `i`, the particles `j ≠ i` with `r_ij < h` (strict, as the
-//! paper's sums), the displacement `x_j − x_i` (minimum image on periodic axes), `r_ij²`,
-//! `w_h(r_ij)` and `w_h(r_ij)/r_ij²`.
+//! paper's sums), the displacement `x_j − x_i` (minimum image on periodic axes),
+//! `w_h(r_ij)` and `w_h(r_ij)/r_ij²` (`r_ij²` itself taken from the displacement,
+//! [`NeighborList::r2`]).
 //!
 //! Candidates within `h + skin` are found with a uniform cell grid (default) or a kiddo k-d tree
 //! ([`Search`]: the same candidates; a whole build 1.1-1.3x faster with the grid, `benches/core.rs`)
@@ -227,7 +228,6 @@ pub struct NeighborList<const D: usize> {
     n_pairs: usize,
     indices: Vec<u32>,
     dx: Vec<[f64; D]>,
-    r2: Vec<f64>,
     w: Vec<f64>,
     wr2: Vec<f64>,
     /// Per row: `Σ_j w_ij` over its pairs in order (the number density), summed by the
@@ -309,7 +309,6 @@ impl<const D: usize> NeighborList<D> {
             n_pairs: 0,
             indices: Vec::new(),
             dx: Vec::new(),
-            r2: Vec::new(),
             w: Vec::new(),
             wr2: Vec::new(),
             w_sum: Vec::new(),
@@ -428,10 +427,11 @@ impl<const D: usize> NeighborList<D> {
     pub fn dx(&self) -> &[[f64; D]] {
         &self.dx
     }
-    /// `r_ij²` of each pair.
+    /// `r_ij²` of pair `k`: `|dx|²`, the bits the measure compared with `h²` (the list keeps
+    /// no array of them: one less array to write every moving step).
     #[inline(always)]
-    pub fn r2(&self) -> &[f64] {
-        &self.r2
+    pub fn r2(&self, k: usize) -> f64 {
+        norm2(&self.dx[k])
     }
     /// `w_h(r_ij)` of each pair.
     #[inline(always)]
@@ -466,7 +466,7 @@ impl<const D: usize> NeighborList<D> {
     pub fn measured_at(&self) -> u64 {
         self.measured_at
     }
-    /// Changes whenever the pair data (`dx`, `r2`, `w`, `wr2`) are re-measured, i.e. whenever
+    /// Changes whenever the pair data (`dx`, `w`, `wr2`) are re-measured, i.e. whenever
     /// positions may have changed: consumers that derive values from the pair data (matrix
     /// values, connectivity) can skip the work while it is unchanged.
     pub fn generation(&self) -> u64 {
@@ -719,7 +719,6 @@ impl<const D: usize> NeighborList<D> {
                 PairArrays {
                     idx: &mut self.indices,
                     dx: &mut self.dx,
-                    r2: &mut self.r2,
                     w: &mut self.w,
                     wr2: &mut self.wr2,
                     starts: &mut self.offsets,
@@ -753,7 +752,6 @@ impl<const D: usize> NeighborList<D> {
                 let room = self.regions[n_regions];
                 self.indices.resize(room, 0);
                 self.dx.resize(room, [0.0; D]);
-                self.r2.resize(room, 0.0);
                 self.w.resize(room, 0.0);
                 self.wr2.resize(room, 0.0);
                 let f = fill_regions(&geo, &self.regions, &mut keep, pair_arrays!());
@@ -830,7 +828,6 @@ impl<const D: usize> Geometry<'_, D> {
 struct PairArrays<'a, const D: usize> {
     idx: &'a mut [u32],
     dx: &'a mut [[f64; D]],
-    r2: &'a mut [f64],
     w: &'a mut [f64],
     wr2: &'a mut [f64],
     starts: &'a mut [usize],
@@ -906,10 +903,10 @@ fn fill_regions<const D: usize>(
     let parts = (
         (
             (ByRegion::new(out.idx, &room), ByRegion::new(out.dx, &room)),
-            (ByRegion::new(out.r2, &room), ByRegion::new(out.w, &room)),
+            (ByRegion::new(out.w, &room), ByRegion::new(out.wr2, &room)),
         ),
         (
-            (ByRegion::new(out.wr2, &room), ByRegion::new(keep, &cands)),
+            ByRegion::new(keep, &cands),
             (
                 (
                     ByRegion::new(out.starts, &rows),
@@ -924,7 +921,7 @@ fn fill_regions<const D: usize>(
     );
     row_pieces(n_regions, 1, room, parts)
         .map(|(span, parts)| {
-            let (((idx, dx), (r2, w)), ((wr2, flags), ((starts, ends), (w_sum, r2_min)))) = parts;
+            let (((idx, dx), (w, wr2)), (flags, ((starts, ends), (w_sum, r2_min)))) = parts;
             let (row0, cand0, at0) = (rows(span.start), cands(span.start), room(span.start));
             let mut acc = Filled::default();
             for c in span {
@@ -932,14 +929,14 @@ fn fill_regions<const D: usize>(
                 for i in rows(c)..rows(c + 1) {
                     let r = i - row0;
                     let (lo, hi) = (g.co[i], g.co[i + 1]);
-                    let (m, flip, zero) = g.with_disp(i, |disp| {
+                    let (m, flip, zero, rmin) = g.with_disp(i, |disp| {
                         measure_row(
                             &g.ci[lo..hi],
                             &mut flags.s[lo - cand0..hi - cand0],
                             g.h2,
                             &mut idx.s[k..end],
                             &mut dx.s[k..end],
-                            &mut r2.s[k..end],
+                            &mut w.s[k..end],
                             disp,
                         )
                     });
@@ -954,11 +951,10 @@ fn fill_regions<const D: usize>(
                         ends.s[r] = at0 + k;
                         continue;
                     }
-                    let rr = &r2.s[k..k + m];
                     g.kernel
-                        .w_and_wr2(rr, &mut w.s[k..k + m], &mut wr2.s[k..k + m]);
+                        .w_and_wr2_in_place(&mut w.s[k..k + m], &mut wr2.s[k..k + m]);
                     w_sum.s[r] = w.s[k..k + m].iter().sum();
-                    r2_min.s[r] = rr.iter().copied().fold(f64::INFINITY, f64::min);
+                    r2_min.s[r] = rmin;
                     k += m;
                     ends.s[r] = at0 + k;
                     acc.pairs += m;
@@ -1014,9 +1010,10 @@ fn flag_row<const D: usize>(
 }
 
 /// The pass of a measure for one row: every candidate measured and flagged (`|d|² < h2`,
-/// `d = disp(j)`), those within `h` written in order — index, displacement, squared
-/// distance — while the room `idx.len()` lasts. Returns how many are within `h` (more than
-/// the room: not all written), whether any flag changed, and the first at zero distance.
+/// `d = disp(j)`), those within `h` written in order — index, displacement, and the squared
+/// distance into `r2o` (the weights' slots, for the kernel to replace) — while the room
+/// `idx.len()` lasts. Returns how many are within `h` (more than the room: not all written),
+/// whether any flag changed, the first at zero distance, and the smallest squared distance.
 #[inline(always)]
 fn measure_row<const D: usize>(
     cands: &[u32],
@@ -1026,8 +1023,8 @@ fn measure_row<const D: usize>(
     dxo: &mut [[f64; D]],
     r2o: &mut [f64],
     disp: &dyn Fn(usize) -> [f64; D],
-) -> (usize, bool, Option<usize>) {
-    let (mut k, mut flipped, mut zero) = (0, 0u8, None);
+) -> (usize, bool, Option<usize>, f64) {
+    let (mut k, mut flipped, mut zero, mut rmin) = (0, 0u8, None, f64::INFINITY);
     let room = idx.len();
     for (&j, f) in cands.iter().zip(flags) {
         let d = disp(j as usize);
@@ -1044,10 +1041,11 @@ fn measure_row<const D: usize>(
                 dxo[k] = d;
                 r2o[k] = rr;
             }
+            rmin = rmin.min(rr);
             k += 1;
         }
     }
-    (k, flipped != 0, zero)
+    (k, flipped != 0, zero, rmin)
 }
 
 /// The minimum image of the offset `v` along an axis of period `l > 0`: one correction covers
@@ -1101,8 +1099,8 @@ pub fn closest_pair<const D: usize>(
                 for i in 0..nl.len() {
                     for k in nl.row(i) {
                         let j = nl.indices[k] as usize;
-                        if nl.r2[k] < best {
-                            best = nl.r2[k];
+                        if nl.r2(k) < best {
+                            best = nl.r2(k);
                             pair = (i.min(j), i.max(j));
                         }
                     }

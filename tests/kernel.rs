@@ -300,7 +300,7 @@ fn normalisation_rejects_other_dimensions() {
 
 #[test]
 fn the_slice_evaluation_is_w_h_bit_for_bit() {
-    // Kernel::w_and_wr2 (the neighbour list's batched measure) against w_h pair by pair:
+    // Kernel::w_and_wr2 (batched, as the neighbour list's measure) against w_h pair by pair:
     // w_h(√q) and w_h(√q)/q with ∞ at q = 0, zero beyond h, for every weight in 2D and 3D
     fn check<const D: usize>(w: Weight) {
         let h = 0.37;
@@ -318,6 +318,14 @@ fn the_slice_evaluation_is_w_h_bit_for_bit() {
             assert_eq!(wr2[i].to_bits(), want_r2.to_bits(), "{w:?} D={D} q={q:e}");
         }
         assert!(wv.iter().zip(&rr).all(|(&v, &q)| q < h * h || v == 0.0));
+        // the in-place form (squared distances in, weights out: the list's measure) gives
+        // the same bits
+        let (mut wi, mut wr2i) = (rr.clone(), vec![f64::NAN; rr.len()]);
+        k.w_and_wr2_in_place(&mut wi, &mut wr2i);
+        for i in 0..rr.len() {
+            assert_eq!(wi[i].to_bits(), wv[i].to_bits(), "{w:?} D={D} in place");
+            assert_eq!(wr2i[i].to_bits(), wr2[i].to_bits(), "{w:?} D={D} in place");
+        }
     }
     for w in all_weights() {
         check::<2>(w);

@@ -232,7 +232,7 @@ fn exactness<const D: usize>(spec: Spec, number_density: bool) {
     // p = 2 for the Laplacian), times the size of the values whose differences are taken
     let moment = |i: usize, p: i32| -> f64 {
         f.nl.row(i)
-            .map(|q| f.vol[f.nl.indices()[q] as usize] * f.nl.w()[q] / f.nl.r2()[q].sqrt().powi(p))
+            .map(|q| f.vol[f.nl.indices()[q] as usize] * f.nl.w()[q] / f.nl.r2(q).sqrt().powi(p))
             .sum::<f64>()
             * 2.0
             * D as f64

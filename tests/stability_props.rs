@@ -748,7 +748,7 @@ fn check_theory<const D: usize>(f: &Fam<D>) -> Result<Option<f64>, TestCaseError
                     .map(|k| {
                         let j = f.nl.indices()[k] as usize;
                         let m: f64 = (0..D).map(|q| (psi[j][q] + psi[i][q]).abs()).sum();
-                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2(k).sqrt()
                     })
                     .sum::<f64>()
                 * phi[i].abs()
@@ -791,7 +791,7 @@ fn check_theory<const D: usize>(f: &Fam<D>) -> Result<Option<f64>, TestCaseError
                     .map(|k| {
                         let j = f.nl.indices()[k] as usize;
                         let m: f64 = (0..D).map(|q| (psi[j][q] + psi[i][q]).abs()).sum();
-                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2(k).sqrt()
                     })
                     .sum();
             (f.vol[i] * row).powi(2)

@@ -445,7 +445,7 @@ fn theorem_4_5<const D: usize>(
                         let m = (0..D)
                             .map(|a| (field[j][a] + field[i][a]).abs())
                             .sum::<f64>();
-                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2()[k].sqrt()
+                        D as f64 * f.vol[j] * m * f.nl.wr2()[k] * f.nl.r2(k).sqrt()
                     })
                     .sum();
             t * t

@@ -693,7 +693,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
                 if u2 > fastest.1 {
                     fastest = (i, u2);
                 }
-                let r2 = nl.row(i).map(|k| nl.r2()[k]).fold(f64::INFINITY, f64::min);
+                let r2 = nl.row(i).map(|k| nl.r2(k)).fold(f64::INFINITY, f64::min);
                 extremes[0] = extremes[0].max(-r2);
             }
             sums[6] = disconnected.iter().filter(|&&i| i < self.n_own).count() as f64;

@@ -263,7 +263,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             let mut gc = [0.0; D];
             for k in nl.row(i) {
                 let j = nl.indices()[k] as usize;
-                let r = nl.r2()[k].sqrt();
+                let r = nl.r2(k).sqrt();
                 let tensile = if sh.tensile > 0.0 && w_dx > 0.0 {
                     1.0 + sh.tensile * (kernel.w_h(r) / w_dx).powi(sh.tensile_exponent)
                 } else {
@@ -284,7 +284,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             if sh.repulsion > 0.0 {
                 let rc = sh.repulsion_radius * dx;
                 for k in nl.row(i) {
-                    let r = nl.r2()[k].sqrt();
+                    let r = nl.r2(k).sqrt();
                     if r < rc && r > 0.0 {
                         let c = -sh.repulsion * (rc - r) / r;
                         for a in 0..D {
