@@ -241,12 +241,17 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     }
     let kernel = *nl.kernel();
     let h = nl.h();
-    let umax = global_speed.unwrap_or_else(|| {
-        (0..n)
-            .filter(|&i| moves(&p.role[i]))
-            .map(|i| norm2(&u[i]).sqrt())
-            .fold(0.0, f64::max)
-    });
+    // (only a shift at the global speed reads it)
+    let umax = match global_speed {
+        Some(v) => v,
+        None if sh.is_some_and(|sh| sh.global_speed) => u
+            .par_iter()
+            .zip(&p.role)
+            .filter(|(_, r)| moves(r))
+            .map(|(ui, _)| norm2(ui).sqrt())
+            .reduce(|| 0.0, f64::max),
+        None => 0.0,
+    };
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
     // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
     s.shift.resize(n, [0.0; D]);
@@ -319,30 +324,32 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     let correct_fick = sh.is_some_and(|sh| sh.correct);
     // the advection displacement Δt u + Δt²/2 a
     let half_dt2 = 0.5 * dt * dt;
-    let advect = |u: &[[f64; D]], i: usize, a: usize| {
-        dt * u[i][a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
+    let advect_one = |ui: &[f64; D], i: usize, a: usize| {
+        dt * ui[a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
     };
-    // wall part, at the advected and Fick-shifted position
+    let advect = |u: &[[f64; D]], i: usize, a: usize| advect_one(&u[i], i, a);
+    // wall part, at the advected and Fick-shifted position; the pushes counted and the
+    // largest shift taken in the same pass
     s.wall.resize(n, [0.0; D]);
-    let mut wall_pushes = 0;
-    for i in 0..n {
-        s.wall[i] = [0.0; D];
-        if !moves(&p.role[i]) {
-            continue;
-        }
-        let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + advect(u, i, a) + s.shift[i][a]);
-        let w = boundary.wall_margin_push(&x, margin);
-        if w.iter().any(|&v| v != 0.0) {
-            wall_pushes += 1;
-            s.wall[i] = w;
-        }
-    }
-    let max_shift = (0..n)
-        .map(|i| {
-            let d: [f64; D] = std::array::from_fn(|a| s.shift[i][a] + s.wall[i][a]);
-            norm2(&d).sqrt()
-        })
-        .fold(0.0, f64::max);
+    let (wall_pushes, max_shift) = {
+        let (p, u, shift) = (&*p, &*u, &s.shift);
+        s.wall
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(1024)
+            .map(|(i, wall)| {
+                *wall = [0.0; D];
+                if moves(&p.role[i]) {
+                    let x: [f64; D] =
+                        std::array::from_fn(|a| p.x[i][a] + advect(u, i, a) + shift[i][a]);
+                    *wall = boundary.wall_margin_push(&x, margin);
+                }
+                let pushed = wall.iter().any(|&v| v != 0.0) as usize;
+                let d: [f64; D] = std::array::from_fn(|a| shift[i][a] + wall[a]);
+                (pushed, norm2(&d).sqrt())
+            })
+            .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)))
+    };
     if correct_fick || wall_pushes > 0 {
         // the gradients at the configuration before the move
         // Taylor correction of u and p to the shifted position (gradients before the move)
@@ -367,55 +374,64 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     if correct_fick {
         velocity_range(nl, &p.role, u, &mut s.range);
     }
-    for i in 0..n {
-        if !moves(&p.role[i]) {
-            continue;
-        }
-        // the velocity follows the shift by its Taylor expansion; the wall part is a stop, not
-        // a displacement within the flow: the particle keeps its velocity except the part
-        // into the wall (extrapolating it to the pushed position instead, with the wall's
-        // value a fraction of Δx away, multiplies that part by (s + δ)/s every step — the
-        // pushed particle then runs into the wall ever faster)
-        let d: [f64; D] = if correct_fick { s.shift[i] } else { [0.0; D] };
-        let w = s.wall[i];
-        for a in 0..D {
-            p.x[i][a] += advect(u, i, a) + s.shift[i][a] + w[a];
-        }
-        if d.iter().any(|&v| v != 0.0) {
-            // u(x + δ) = u + δ·∇u + ½ δᵀ(∇∇u)δ: with the first-order term alone, every shift
-            // diffuses the velocity by ½|δ|²∇²u (a decay error growing with the step count)
-            let second = !s.hess.is_empty() && !s.near_wall[i];
-            let quad = |h: &[[f64; D]; D]| -> f64 {
-                0.5 * (0..D)
-                    .map(|c| d[c] * (0..D).map(|b| h[c][b] * d[b]).sum::<f64>())
-                    .sum::<f64>()
-            };
+    let s = &*s;
+    let role = &p.role;
+    let particle =
+        p.x.par_iter_mut()
+            .zip(u.par_iter_mut())
+            .zip(p.p.par_iter_mut());
+    particle
+        .enumerate()
+        .with_min_len(1024)
+        .for_each(|(i, ((x, ui), pi))| {
+            if !moves(&role[i]) {
+                return;
+            }
+            // the velocity follows the shift by its Taylor expansion; the wall part is a stop, not
+            // a displacement within the flow: the particle keeps its velocity except the part
+            // into the wall (extrapolating it to the pushed position instead, with the wall's
+            // value a fraction of Δx away, multiplies that part by (s + δ)/s every step — the
+            // pushed particle then runs into the wall ever faster)
+            let d: [f64; D] = if correct_fick { s.shift[i] } else { [0.0; D] };
+            let w = s.wall[i];
             for a in 0..D {
-                u[i][a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
+                x[a] += advect_one(ui, i, a) + s.shift[i][a] + w[a];
+            }
+            if d.iter().any(|&v| v != 0.0) {
+                // u(x + δ) = u + δ·∇u + ½ δᵀ(∇∇u)δ: with the first-order term alone, every shift
+                // diffuses the velocity by ½|δ|²∇²u (a decay error growing with the step count)
+                let second = !s.hess.is_empty() && !s.near_wall[i];
+                let quad = |h: &[[f64; D]; D]| -> f64 {
+                    0.5 * (0..D)
+                        .map(|c| d[c] * (0..D).map(|b| h[c][b] * d[b]).sum::<f64>())
+                        .sum::<f64>()
+                };
+                for a in 0..D {
+                    ui[a] += (0..D).map(|b| s.grad[i][a][b] * d[b]).sum::<f64>();
+                    if second {
+                        ui[a] += quad(&s.hess[i][a]);
+                    }
+                    // no new extremum: the correction is an advection by the shift, and a centred
+                    // one is unstable where the velocity jumps within h (the lid corners: a
+                    // Lagrangian cavity at Re 1000 blew up there within 22 steps)
+                    let [lo, hi] = s.range[i][a];
+                    ui[a] = ui[a].clamp(lo, hi);
+                }
+                *pi += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
                 if second {
-                    u[i][a] += quad(&s.hess[i][a]);
-                }
-                // no new extremum: the correction is an advection by the shift, and a centred
-                // one is unstable where the velocity jumps within h (the lid corners: a
-                // Lagrangian cavity at Re 1000 blew up there within 22 steps)
-                let [lo, hi] = s.range[i][a];
-                u[i][a] = u[i][a].clamp(lo, hi);
-            }
-            p.p[i] += (0..D).map(|b| s.gp[i][b] * d[b]).sum::<f64>();
-            if second {
-                p.p[i] += quad(&s.hp[i]);
-            }
-        }
-        for a in 0..D {
-            if w[a] != 0.0 {
-                // the pressure (a Neumann field at the wall) is expanded to the new position
-                p.p[i] += s.gp[i][a] * w[a];
-                if u[i][a] * w[a] < 0.0 {
-                    u[i][a] = 0.0;
+                    *pi += quad(&s.hp[i]);
                 }
             }
-        }
-    }
+            for a in 0..D {
+                if w[a] != 0.0 {
+                    // the pressure (a Neumann field at the wall) is expanded to the new position
+                    *pi += s.gp[i][a] * w[a];
+                    if ui[a] * w[a] < 0.0 {
+                        ui[a] = 0.0;
+                    }
+                }
+            }
+        });
     boundary.confine_with_band(p, band_moves)?;
     Ok(Moved {
         max_shift,
