@@ -805,23 +805,29 @@ impl<const D: usize> Geometry<'_, D> {
             std::array::from_fn(|k| self.per.len[k] > 0.0)
         }
     }
+}
 
-    /// Calls `f` with row `i`'s displacement `x_j − x_i` as a function of `j`: the plain
-    /// difference when no axis needs the minimum image (a loop of its own, without the test).
-    #[inline(always)]
-    fn with_disp<R>(&self, i: usize, f: impl FnOnce(&dyn Fn(usize) -> [f64; D]) -> R) -> R {
-        let x = self.x;
-        let axes = self.near(i);
+/// Evaluates `$body` with `$disp` bound to row `$i`'s displacement `x_j − x_i` as a closure of
+/// `j` (a [`Geometry`] `$g`): the plain difference when no axis needs the minimum image. Each
+/// branch has its own closure type, so that the row's loop is compiled for each, the
+/// displacement inlined (not called through a pointer).
+macro_rules! with_disp {
+    ($g:expr, $i:expr, |$disp:ident| $body:expr) => {{
+        let (g, i) = ($g, $i);
+        let x = g.x;
+        let axes = g.near(i);
         if axes == [false; D] {
-            f(&|j| std::array::from_fn(|k| x[j][k] - x[i][k]))
+            let $disp = |j: usize| -> [f64; D] { std::array::from_fn(|k| x[j][k] - x[i][k]) };
+            $body
         } else {
-            f(&|j| {
+            let $disp = |j: usize| -> [f64; D] {
                 let mut d: [f64; D] = std::array::from_fn(|k| x[j][k] - x[i][k]);
-                self.per.min_image_on(&mut d, &axes);
+                g.per.min_image_on(&mut d, &axes);
                 d
-            })
+            };
+            $body
         }
-    }
+    }};
 }
 
 /// The pair arrays (per pair) and per-row outputs a measure writes.
@@ -929,7 +935,7 @@ fn fill_regions<const D: usize>(
                 for i in rows(c)..rows(c + 1) {
                     let r = i - row0;
                     let (lo, hi) = (g.co[i], g.co[i + 1]);
-                    let (m, flip, zero, rmin) = g.with_disp(i, |disp| {
+                    let (m, flip, zero, rmin) = with_disp!(g, i, |disp| {
                         measure_row(
                             &g.ci[lo..hi],
                             &mut flags.s[lo - cand0..hi - cand0],
@@ -981,7 +987,12 @@ fn count_rows<const D: usize>(g: &Geometry<'_, D>, keep: &mut [u8], counts: &mut
         let mut flipped = false;
         for (i, count) in rows.zip(counts.iter_mut()) {
             let fl = &mut flags[co[i] - base..co[i + 1] - base];
-            let (c, f) = g.with_disp(i, |disp| flag_row(&g.ci[co[i]..co[i + 1]], fl, g.h2, disp));
+            let (c, f) = with_disp!(g, i, |disp| flag_row(
+                &g.ci[co[i]..co[i + 1]],
+                fl,
+                g.h2,
+                disp
+            ));
             *count = c;
             flipped |= f;
         }
@@ -997,7 +1008,7 @@ fn flag_row<const D: usize>(
     cands: &[u32],
     flags: &mut [u8],
     h2: f64,
-    disp: &dyn Fn(usize) -> [f64; D],
+    disp: impl Fn(usize) -> [f64; D],
 ) -> (usize, bool) {
     let (mut count, mut flipped) = (0, 0u8);
     for (&j, f) in cands.iter().zip(flags) {
@@ -1022,7 +1033,7 @@ fn measure_row<const D: usize>(
     idx: &mut [u32],
     dxo: &mut [[f64; D]],
     r2o: &mut [f64],
-    disp: &dyn Fn(usize) -> [f64; D],
+    disp: impl Fn(usize) -> [f64; D],
 ) -> (usize, bool, Option<usize>, f64) {
     let (mut k, mut flipped, mut zero, mut rmin) = (0, 0u8, None, f64::INFINITY);
     let room = idx.len();
