@@ -987,37 +987,24 @@ fn count_rows<const D: usize>(g: &Geometry<'_, D>, keep: &mut [u8], counts: &mut
         let mut flipped = false;
         for (i, count) in rows.zip(counts.iter_mut()) {
             let fl = &mut flags[co[i] - base..co[i + 1] - base];
-            let (c, f) = with_disp!(g, i, |disp| flag_row(
-                &g.ci[co[i]..co[i + 1]],
-                fl,
-                g.h2,
-                disp
-            ));
+            // (the one pass's row with no room: counted and flagged, nothing written)
+            let (c, f, _, _) = with_disp!(g, i, |disp| {
+                measure_row(
+                    &g.ci[co[i]..co[i + 1]],
+                    fl,
+                    g.h2,
+                    &mut [],
+                    &mut [],
+                    &mut [],
+                    disp,
+                )
+            });
             *count = c;
             flipped |= f;
         }
         flipped
     })
     .reduce(|| false, |a, b| a || b)
-}
-
-/// The counting pass for one row: `flags[e]` = candidate `e` within `h` (`|d|² < h2`,
-/// `d = disp(j)`); how many are, and whether any flag changed.
-#[inline(always)]
-fn flag_row<const D: usize>(
-    cands: &[u32],
-    flags: &mut [u8],
-    h2: f64,
-    disp: impl Fn(usize) -> [f64; D],
-) -> (usize, bool) {
-    let (mut count, mut flipped) = (0, 0u8);
-    for (&j, f) in cands.iter().zip(flags) {
-        let inside = (norm2(&disp(j as usize)) < h2) as u8;
-        flipped |= *f ^ inside;
-        *f = inside;
-        count += inside as usize;
-    }
-    (count, flipped != 0)
 }
 
 /// The pass of a measure for one row: every candidate measured and flagged (`|d|² < h2`,

@@ -324,10 +324,9 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     let correct_fick = sh.is_some_and(|sh| sh.correct);
     // the advection displacement Δt u + Δt²/2 a
     let half_dt2 = 0.5 * dt * dt;
-    let advect_one = |ui: &[f64; D], i: usize, a: usize| {
+    let advect = |ui: &[f64; D], i: usize, a: usize| {
         dt * ui[a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
     };
-    let advect = |u: &[[f64; D]], i: usize, a: usize| advect_one(&u[i], i, a);
     // wall part, at the advected and Fick-shifted position; the pushes counted and the
     // largest shift taken in the same pass
     s.wall.resize(n, [0.0; D]);
@@ -341,7 +340,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
                 *wall = [0.0; D];
                 if moves(&p.role[i]) {
                     let x: [f64; D] =
-                        std::array::from_fn(|a| p.x[i][a] + advect(u, i, a) + shift[i][a]);
+                        std::array::from_fn(|a| p.x[i][a] + advect(&u[i], i, a) + shift[i][a]);
                     *wall = boundary.wall_margin_push(&x, margin);
                 }
                 let pushed = wall.iter().any(|&v| v != 0.0) as usize;
@@ -395,7 +394,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             let d: [f64; D] = if correct_fick { s.shift[i] } else { [0.0; D] };
             let w = s.wall[i];
             for a in 0..D {
-                x[a] += advect_one(ui, i, a) + s.shift[i][a] + w[a];
+                x[a] += advect(ui, i, a) + s.shift[i][a] + w[a];
             }
             if d.iter().any(|&v| v != 0.0) {
                 // u(x + δ) = u + δ·∇u + ½ δᵀ(∇∇u)δ: with the first-order term alone, every shift
