@@ -265,8 +265,16 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             if !moves(&p.role[i]) {
                 return;
             }
+            // ∇C: the Fickian term's direction, and the surface normal of a band particle (the
+            // default shifting, pair repulsion alone, reads it only there)
+            let is_band = p.role[i] == crate::particles::Role::Dirichlet;
             let mut gc = [0.0; D];
-            for k in nl.row(i) {
+            let pairs = if sh.coefficient > 0.0 || is_band {
+                nl.row(i)
+            } else {
+                0..0
+            };
+            for k in pairs {
                 let j = nl.indices()[k] as usize;
                 let r = nl.r2(k).sqrt();
                 let tensile = if sh.tensile > 0.0 && w_dx > 0.0 {
@@ -289,8 +297,9 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             if sh.repulsion > 0.0 {
                 let rc = sh.repulsion_radius * dx;
                 for k in nl.row(i) {
-                    let r = nl.r2(k).sqrt();
-                    if r < rc && r > 0.0 {
+                    let r2 = nl.r2(k);
+                    if r2 < rc * rc && r2 > 0.0 {
+                        let r = r2.sqrt();
                         let c = -sh.repulsion * (rc - r) / r;
                         for a in 0..D {
                             d[a] += c * nl.dx()[k][a];
@@ -303,7 +312,7 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
                     d[a] += v[a];
                 }
             }
-            if p.role[i] == crate::particles::Role::Dirichlet {
+            if is_band {
                 // tangential only: remove the part along the surface normal ∇C/|∇C|
                 let g2 = norm2(&gc);
                 if g2 > 0.0 {
