@@ -17,22 +17,21 @@
 //! run anyone can make: on the exact lattice the vortex's strain closes the rows, and at 2D 10⁵
 //! the Poisson source grows by ×1.3–1.5 a step from about step 70 on (`|b|` 1.4·10⁻³ at step 70,
 //! 1.1·10⁻¹ at step 100, 2.5·10² at step 140; its AMG-CG iterations 3 → 9 → 18) — the
-//! README's *pure Lagrangian frame fails early*. After warm-up steps, the mean time per step of each stage is
-//! written to `steps.csv` (`d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step`),
+//! README's *pure Lagrangian frame fails early*. After warm-up steps, the mean time per step of
+//! each stage is written to `steps.csv` (`d,n_particles,frame,solver,reuse,threads,stage,seconds_per_step`),
 //! together with the peak memory, and a table is printed. The cavity reuse comparison runs the
 //! n = 100 cavity with every reuse switched on and off. The SpMV bandwidth of each case's Poisson
 //! matrix is compared with a stream copy measured in the same process (`spmv.csv`:
 //! `d,n_particles,frame,solver,reuse,threads,matrix_mb,spmv_gbs,copy_gbs,ratio`). The growth of the time per step
 //! with N (the exponent of a least-squares power law per dimension and frame) is written to
 //! `scaling.csv`. The switch study (full run only) flips each reuse switch of a moving step
-//! alone against the defaults on the moving 2D 10⁵ case (`switches.csv`).
+//! alone against the defaults on the moving and the shifted 2D 10⁵ cases (`switches.csv`).
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use gpm::boundary::PeriodicBox;
-use gpm::flow::Shifting;
-use gpm::flow::{FlowParams, Integrator, Motion, Simulation, TimeStepLimits, VolumeRule};
-use gpm::geometry::lattice;
+use gpm::flow::{FlowParams, Integrator, Motion, Shifting, Simulation, TimeStepLimits, VolumeRule};
+use gpm::geometry::{jitter, lattice};
 use gpm::kernel::Weight;
 use gpm::neighbors::{NeighborConfig, Periodicity};
 use gpm::particles::{Particles, Role};
@@ -40,7 +39,7 @@ use gpm::poisson::{SolveParams, SolverKind};
 use gpm::projection::{ProjectionParams, Scheme};
 use gpm::record::{RecordLevel, Recorder};
 use gpm::scene::cavity;
-use gpm::scene::taylor_green::LAGRANGIAN_JITTER;
+use gpm::scene::taylor_green::{TaylorGreen, LAGRANGIAN_JITTER};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -195,8 +194,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     let shifted = c.frame == "shifted";
     let mut xs = lattice([0.0; D], [1.0; D], dx);
     if shifted {
-        let seed = gpm::scene::taylor_green::TaylorGreen::default().seed;
-        gpm::geometry::jitter(&mut xs, LAGRANGIAN_JITTER * dx, seed);
+        jitter(&mut xs, LAGRANGIAN_JITTER * dx, TaylorGreen::default().seed);
     }
     let mut p = Particles::<D>::new();
     for x in xs {
@@ -545,58 +543,64 @@ fn main_inner(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// Each reuse switch of [`SWITCHES`] flipped alone against the defaults on the moving 2D 10⁵
-/// Taylor–Green step (issue 17: every reuse switch pays on moving particles): the defaults and
-/// the flipped run alternated, two of each (`--switches K`: K), the fastest of each kept; printed and written
-/// to `switches.csv` (`d,n_particles,frame,switch,default_on,on_ms,off_ms,off_over_on`).
+/// Each reuse switch of [`SWITCHES`] flipped alone against the defaults on the moving and the
+/// shifted 2D 10⁵ Taylor–Green steps (issue 17: every reuse switch pays on moving particles):
+/// the defaults and the flipped run alternated, two of each (`--switches K`: K), the fastest of
+/// each kept; printed and written to `switches.csv`
+/// (`d,n_particles,frame,switch,default_on,on_ms,off_ms,off_over_on`).
 fn switches(a: &Args) -> Result<()> {
-    let base = Case {
-        d: 2,
-        n_particles: 100_000,
-        frame: "moving".into(),
-        solver: SolverKind::Auto,
-        reuse: true,
-        threads: 2,
-        steps: 10,
-        warmup: a.warmup,
-        flip: None,
-    };
     let mut csv = std::fs::File::create(a.out.join("switches.csv"))?;
     writeln!(
         csv,
         "d,n_particles,frame,switch,default_on,on_ms,off_ms,off_over_on"
     )?;
     let rounds = a.switches.unwrap_or(2).max(1);
-    println!("reuse switches, each flipped alone (2D 10⁵ moving, ms per step, best of {rounds}):");
-    for (name, default_on, what) in SWITCHES {
-        let flipped = Case {
-            flip: Some(name.to_string()),
-            ..base.clone()
+    // the pure moving step, and the Lagrangian step a user runs (jitter and shifting)
+    for frame in ["moving", "shifted"] {
+        let base = Case {
+            d: 2,
+            n_particles: 100_000,
+            frame: frame.into(),
+            solver: SolverKind::Auto,
+            reuse: true,
+            threads: 2,
+            steps: 10,
+            warmup: a.warmup,
+            flip: None,
         };
-        let (mut t_default, mut t_flipped) = (f64::INFINITY, f64::INFINITY);
-        for _ in 0..rounds {
-            t_default = t_default.min(spawn(&base)?.total);
-            t_flipped = t_flipped.min(spawn(&flipped)?.total);
-        }
-        let (on, off) = if default_on {
-            (t_default, t_flipped)
-        } else {
-            (t_flipped, t_default)
-        };
-        writeln!(
-            csv,
-            "2,100000,moving,{name},{default_on},{:.2},{:.2},{:.3}",
-            on * 1e3,
-            off * 1e3,
-            off / on
-        )?;
         println!(
-            "  {name:<21} on {:7.1}  off {:7.1}  off/on {:5.2}  (default {}; {what})",
-            on * 1e3,
-            off * 1e3,
-            off / on,
-            if default_on { "on" } else { "off" }
+            "reuse switches, each flipped alone (2D 10⁵ {frame}, ms per step, best of {rounds}):"
         );
+        for (name, default_on, what) in SWITCHES {
+            let flipped = Case {
+                flip: Some(name.to_string()),
+                ..base.clone()
+            };
+            let (mut t_default, mut t_flipped) = (f64::INFINITY, f64::INFINITY);
+            for _ in 0..rounds {
+                t_default = t_default.min(spawn(&base)?.total);
+                t_flipped = t_flipped.min(spawn(&flipped)?.total);
+            }
+            let (on, off) = if default_on {
+                (t_default, t_flipped)
+            } else {
+                (t_flipped, t_default)
+            };
+            writeln!(
+                csv,
+                "2,100000,{frame},{name},{default_on},{:.2},{:.2},{:.3}",
+                on * 1e3,
+                off * 1e3,
+                off / on
+            )?;
+            println!(
+                "  {name:<21} on {:7.1}  off {:7.1}  off/on {:5.2}  (default {}; {what})",
+                on * 1e3,
+                off * 1e3,
+                off / on,
+                if default_on { "on" } else { "off" }
+            );
+        }
     }
     println!("wrote {}", a.out.join("switches.csv").display());
     Ok(())
