@@ -90,7 +90,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 9] = [
+const SWITCHES: [(&str, bool, &str); 10] = [
     (
         "skin",
         true,
@@ -135,6 +135,11 @@ const SWITCHES: [(&str, bool, &str); 9] = [
         "pattern_reuse",
         false,
         "Poisson pattern of the candidate pairs, kept until the next search",
+    ),
+    (
+        "amg_single_precision",
+        true,
+        "AMG V-cycle reads f32 copies of its matrices' values",
     ),
 ];
 
@@ -228,7 +233,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,
         Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
-        Some("keep_pressure_gradient") => {}
+        Some("keep_pressure_gradient" | "amg_single_precision") => {}
         Some(other) => bail!("unknown switch {other:?}"),
     }
     let moving = c.frame != "fixed";
@@ -252,8 +257,10 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     };
     let config = NeighborConfig::new_relative(Weight::WendlandC2, dx, 3.0, skin);
     let mut sim = Simulation::new(p, PeriodicBox { periodic }, config, params)?;
-    if c.flip.as_deref() == Some("keep_pressure_gradient") {
-        sim.projection.keep_pressure_gradient = false;
+    match c.flip.as_deref() {
+        Some("keep_pressure_gradient") => sim.projection.keep_pressure_gradient = false,
+        Some("amg_single_precision") => sim.projection.solver.amg.params.single_precision = false,
+        _ => {}
     }
     Ok(sim)
 }

@@ -145,20 +145,21 @@ pub(crate) fn row_pieces<P: SplitParts>(
 /// `len mod 4` entries in order. Four independent chains instead of one: a 3D Poisson row
 /// (≈ 110 entries) is otherwise bound by the latency of its additions (stream bandwidth of the
 /// product 34 → 38–51 GB/s at 3D 10⁵; 2D rows of ≈ 27 entries gain little). Deterministic: the
-/// order depends on the row only, not on threads.
+/// order depends on the row only, not on threads. The values may be stored in `f32` (the AMG
+/// V-cycle's copies, [`crate::poisson::AmgParams::single_precision`]); the sums are in `f64`.
 #[inline]
-pub fn sparse_dot(values: &[f64], cols: &[u32], x: &[f64]) -> f64 {
+pub fn sparse_dot<V: Copy + Into<f64>>(values: &[V], cols: &[u32], x: &[f64]) -> f64 {
     let (vc, vr) = values.as_chunks::<4>();
     let (cc, cr) = cols[..values.len()].as_chunks::<4>();
     let mut acc = [0.0f64; 4];
     for (v, c) in vc.iter().zip(cc) {
         for t in 0..4 {
-            acc[t] += v[t] * x[c[t] as usize];
+            acc[t] += v[t].into() * x[c[t] as usize];
         }
     }
     let mut s = (acc[0] + acc[1]) + (acc[2] + acc[3]);
-    for (v, &c) in vr.iter().zip(cr) {
-        s += v * x[c as usize];
+    for (&v, &c) in vr.iter().zip(cr) {
+        s += v.into() * x[c as usize];
     }
     s
 }
