@@ -57,6 +57,32 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// AMG-preconditioned CG on `a` (the hierarchy `amg` built for it) from zero: the report and
+/// the solution.
+fn amg_cg(
+    a: &Assembly,
+    amg: &mut Amg,
+    b: &[f64],
+    rel_tol: f64,
+    max_iters: usize,
+) -> (gpm::poisson::iterative::CgInfo, Vec<f64>) {
+    let mut x = vec![0.0; a.n()];
+    let r = pcg_with(
+        a,
+        b,
+        &mut x,
+        rel_tol,
+        0.0,
+        max_iters,
+        &mut gpm::poisson::amg::AmgPreconditioner {
+            amg,
+            a: CsrRef::from(a),
+        },
+    )
+    .unwrap();
+    (r, x)
+}
+
 /// Small coarse size so that these small systems still get several levels.
 fn small_params() -> AmgParams {
     AmgParams {
@@ -349,20 +375,7 @@ fn galerkin_operators_and_values_only_refresh() {
     assert_ne!(built.operator(1), refreshed.operator(1));
     // and it still preconditions the new matrix well: CG converges
     let b = random_vec(a2.n(), 3);
-    let mut x = vec![0.0; a2.n()];
-    let r = pcg_with(
-        &a2,
-        &b,
-        &mut x,
-        1e-10,
-        0.0,
-        200,
-        &mut gpm::poisson::amg::AmgPreconditioner {
-            amg: &mut refreshed,
-            a: m2,
-        },
-    )
-    .unwrap();
+    let (r, _) = amg_cg(&a2, &mut refreshed, &b, 1e-10, 200);
     assert!(r.rel_residual <= 1e-9, "{r:?}");
 }
 
@@ -373,20 +386,7 @@ fn iterations(n: usize) -> (usize, usize, usize) {
     let m = CsrRef::from(&a);
     let b = random_vec(a.n(), 4);
     let mut amg = Amg::build(m, AmgParams::default());
-    let mut x = vec![0.0; a.n()];
-    let ra = pcg_with(
-        &a,
-        &b,
-        &mut x,
-        1e-8,
-        0.0,
-        1000,
-        &mut gpm::poisson::amg::AmgPreconditioner {
-            amg: &mut amg,
-            a: m,
-        },
-    )
-    .unwrap();
+    let (ra, _) = amg_cg(&a, &mut amg, &b, 1e-8, 1000);
     let mut x = vec![0.0; a.n()];
     let rj = pcg(&a, &b, &mut x, 1e-8, 0.0, 10_000).unwrap();
     (ra.iters, rj.iters, amg.stats().levels())
@@ -871,17 +871,7 @@ fn single_precision_vcycle_differs_by_the_rounding_of_its_values() {
     assert!(rel <= 1e-6, "‖B₃₂x − B₆₄x‖/‖B₆₄x‖ = {rel:e}");
     let b = random_vec(n, 4);
     let solve = |amg: &mut Amg| {
-        let mut x = vec![0.0; n];
-        let r = pcg_with(
-            &a,
-            &b,
-            &mut x,
-            1e-10,
-            0.0,
-            500,
-            &mut gpm::poisson::amg::AmgPreconditioner { amg, a: m },
-        )
-        .unwrap();
+        let (r, x) = amg_cg(&a, amg, &b, 1e-10, 500);
         assert!(r.rel_residual <= 1e-10, "{r:?}");
         (r.iters, x)
     };
