@@ -331,7 +331,6 @@ impl Assembly {
             self.derived_from = Some(k.pattern_id);
         }
         self.forget_values();
-        self.jacobi = None;
         self.values_reused = false;
         self.values.resize(k.values.len(), 0.0);
         let two_d = 2.0 * D as f64;
@@ -564,14 +563,16 @@ impl Assembly {
     pub(crate) fn discard_values(&mut self) {
         self.forget_values();
         self.filled = None;
-        self.jacobi = None;
     }
 
-    /// Marks the values as computed from nothing known (the key's memory kept).
+    /// Marks the values as computed from nothing known (the key's memory kept), and drops
+    /// Gershgorin's bound taken with the old ones (a fill that computes a new one sets it
+    /// after this).
     fn forget_values(&mut self) {
         if let Some(k) = &mut self.values_key {
             k.valid = false;
         }
+        self.jacobi = None;
     }
 
     /// [`Self::update_with_values`] when every particle is a fluid unknown (numbered in
@@ -740,7 +741,6 @@ impl Assembly {
         }
         self.values_reused = false;
         self.forget_values();
-        self.jacobi = None;
         let two_d = 2.0 * D as f64;
         let missing = AtomicBool::new(false);
         let n = self.n();
