@@ -71,7 +71,8 @@ struct Args {
     /// Also time solves after a change of values: full rebuild, values-only refresh, lag.
     #[arg(long)]
     reuse: bool,
-    /// Time the kernels (fine SpMV, one V-cycle), best of 10.
+    /// Time the kernels (fine SpMV, one V-cycle with the values in `f32` and in `f64`), best
+    /// of 10.
     #[arg(long)]
     kernels: bool,
     /// Repeat each cold solve this many times and report the fastest (shared machine).
@@ -306,6 +307,21 @@ fn kernels(solver: &mut PoissonSolver) {
     let m = gpm::poisson::amg::CsrRef::from(a);
     let amg = solver.amg.hierarchy_mut().expect("hierarchy");
     let vc = best(&mut || amg.vcycle(m, &x, &mut y));
+    // the same hierarchy with the V-cycle's values in the other precision
+    let single = amg.params().single_precision;
+    let mut other = gpm::poisson::Amg::build(
+        m,
+        gpm::poisson::AmgParams {
+            single_precision: !single,
+            ..*amg.params()
+        },
+    );
+    let vc_other = best(&mut || other.vcycle(m, &x, &mut y));
+    let (vc32, vc64) = if single {
+        (vc, vc_other)
+    } else {
+        (vc_other, vc)
+    };
     let mut refresh = f64::INFINITY;
     for _ in 0..5 {
         amg.refresh(m);
@@ -317,10 +333,12 @@ fn kernels(solver: &mut PoissonSolver) {
         refresh, t.galerkin, t.spectral, t.coarse
     );
     println!(
-        "           kernels: K x {:.2} ms, V-cycle {:.2} ms ({:.2} products)",
+        "           kernels: K x {:.2} ms, V-cycle {:.2} ms ({:.2} products; values in f32 {:.2} ms, in f64 {:.2} ms)",
         spmv * 1e3,
         vc * 1e3,
-        vc / spmv
+        vc / spmv,
+        vc32 * 1e3,
+        vc64 * 1e3
     );
 }
 
