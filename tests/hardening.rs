@@ -2,11 +2,13 @@
 //! recorded projection inputs, strict configuration, output ownership (lock, partial files,
 //! failed runs), non-regular input files, closed and full standard output, signals.
 
+mod common;
+
 use gpm::error::InputError;
 use gpm::record::output::{failed_path, partial_path, OutputLock};
-use gpm::record::replay::{scan, Replay};
+use gpm::record::replay::Replay;
 use gpm::record::rerun::rerun_input;
-use gpm::record::schema::{Array, BoundarySpec, ProjectionInput, TOPIC_PROJECTION};
+use gpm::record::schema::{Array, BoundarySpec, ProjectionInput};
 use gpm::record::{RecordError, RecordLevel, Recorder, RecorderOptions};
 use gpm::scene::cavity::{self, CavityConfig};
 use gpm::scene::taylor_green::{self, TaylorGreenConfig};
@@ -37,19 +39,7 @@ fn first_input(walls: bool) -> ProjectionInput {
         rec.write_step(&r, &sim).unwrap();
     }
     rec.finish().unwrap();
-    let mut first = None;
-    scan(
-        &path,
-        |m| {
-            if m.topic == TOPIC_PROJECTION && first.is_none() {
-                first = Some(m.decode::<ProjectionInput>()?);
-            }
-            Ok(())
-        },
-        |_, _| {},
-    )
-    .unwrap();
-    first.unwrap()
+    common::first_projection_input(&path)
 }
 
 fn u32s(a: &Array) -> Vec<u32> {

@@ -1,6 +1,9 @@
 //! Recording round trips: write → read → equal, snapshots, projection inputs and their re-run,
 //! CSV and VTK export, and agreement with the mcap crate's own reader.
 
+mod common;
+
+use common::first_projection_input;
 use gpm::boundary::Walls;
 use gpm::flow::{FlowReport, Motion, Simulation};
 use gpm::projection::ProjectionCapture;
@@ -601,23 +604,6 @@ fn record_full_and_rerun(
     }
     rec.finish().unwrap();
     rerun_file(path, |_, _| {}).unwrap()
-}
-
-/// The first `/projection_input` of the file at `path`.
-fn first_projection_input(path: &Path) -> ProjectionInput {
-    let mut first = None;
-    scan(
-        path,
-        |m| {
-            if m.topic == TOPIC_PROJECTION && first.is_none() {
-                first = Some(m.decode::<ProjectionInput>()?);
-            }
-            Ok(())
-        },
-        |_, _| {},
-    )
-    .unwrap();
-    first.expect("a recorded projection input")
 }
 
 /// Every projection parameter is recorded: a run with non-default ones re-runs bit for bit.

@@ -381,3 +381,21 @@ pub fn deterministic_runner(cases: u32, seed: u8) -> proptest::test_runner::Test
     let rng = TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]);
     TestRunner::new_with_rng(c, rng)
 }
+
+/// The first `/projection_input` message of the recording at `path`.
+pub fn first_projection_input(path: &std::path::Path) -> gpm::record::schema::ProjectionInput {
+    use gpm::record::schema::{ProjectionInput, TOPIC_PROJECTION};
+    let mut first = None;
+    gpm::record::replay::scan(
+        path,
+        |m| {
+            if m.topic == TOPIC_PROJECTION && first.is_none() {
+                first = Some(m.decode::<ProjectionInput>()?);
+            }
+            Ok(())
+        },
+        |_, _| {},
+    )
+    .unwrap();
+    first.expect("a recorded projection input")
+}
