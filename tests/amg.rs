@@ -884,3 +884,61 @@ fn single_precision_vcycle_differs_by_the_rounding_of_its_values() {
     let dx: Vec<f64> = xs.iter().zip(&xd).map(|(s, d)| s - d).collect();
     assert!(norm(&dx) <= 1e-8 * norm(&xd), "{:e}", norm(&dx) / norm(&xd));
 }
+
+/// A hierarchy built from the matrix in use is not rebuilt for a worse iteration rate while
+/// the values stay unchanged (fixed particles): a rebuild would produce the same hierarchy, and
+/// the rate moves with the warm start (a good one leaves few decades for the same iterations).
+/// It was: the bench's fixed 2D 10⁵ step rebuilt it once at step 9 (83 ms). A lagged hierarchy
+/// on the same values is still refreshed or rebuilt when its rate grows.
+#[test]
+fn an_exact_hierarchy_is_not_rebuilt_for_a_worse_rate() {
+    use gpm::poisson::amg::{AmgCache, AmgReuse};
+    use gpm::poisson::iterative::CgInfo;
+    let f = dirichlet_box::<2>(Spec::lattice(20, 3.0, Weight::WendlandC2).jittered(0.3, 41));
+    let moved = dirichlet_box::<2>(Spec::lattice(20, 3.0, Weight::WendlandC2).jittered(0.3, 42));
+    let mut a = Assembly::default();
+    a.reuse_values = true;
+    a.update_pattern(&f.nl, &f.role);
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    let reuse = AmgReuse {
+        values: false,
+        ..AmgReuse::default()
+    };
+    // 10 iterations over 10 decades, then over 2: a rate 5× the reference (lag factor 1.5)
+    let cg = |decades: i32| CgInfo {
+        iters: 10,
+        initial_residual: 1.0,
+        final_residual: 10f64.powi(-decades),
+        ..Default::default()
+    };
+    let mut cache = AmgCache::new(AmgParams {
+        coarse_size: 20,
+        ..AmgParams::default()
+    });
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Rebuilt);
+    cache.record(&cg(10), reuse);
+    // the same values again
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    assert!(a.values_current());
+    for _ in 0..3 {
+        assert_eq!(cache.prepare(&a, reuse), AmgSetup::Reused);
+        cache.record(&cg(2), reuse);
+    }
+    assert_eq!(cache.rebuilds, 1);
+    // moved values: lagged; a worse rate then asks for a rebuild (values-only refresh off)
+    a.update_pattern(&moved.nl, &moved.role);
+    a.fill_values(&moved.nl, &moved.vol, &moved.role).unwrap();
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Lagged);
+    cache.record(&cg(2), reuse);
+    a.fill_values(&moved.nl, &moved.vol, &moved.role).unwrap();
+    assert!(a.values_current());
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Rebuilt);
+    // and a lagged hierarchy whose values then stay unchanged is still not exact
+    a.update_pattern(&f.nl, &f.role);
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Lagged);
+    a.fill_values(&f.nl, &f.vol, &f.role).unwrap();
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Reused);
+    cache.record(&cg(2), reuse);
+    assert_eq!(cache.prepare(&a, reuse), AmgSetup::Rebuilt);
+}

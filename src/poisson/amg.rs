@@ -1680,6 +1680,10 @@ pub struct AmgCache {
     want: Want,
     ref_rate: f64,
     full_rate: f64,
+    /// The hierarchy is a full build from the matrix values in use (set by a rebuild, cleared
+    /// by a lag or a values-only refresh): rebuilding it would give the same hierarchy, so a
+    /// worse iteration rate (a warm start that left less to reduce) asks for nothing.
+    exact: bool,
     /// Full rebuilds so far.
     pub rebuilds: u64,
     /// Values-only refreshes so far.
@@ -1731,18 +1735,21 @@ impl AmgCache {
                 self.amg = Some(Amg::build(m, self.params));
                 self.pattern_id = a.pattern_id();
                 self.rebuilds += 1;
+                self.exact = true;
             }
             AmgSetup::Refreshed => {
                 let h = self.amg.as_mut().expect("hierarchy");
                 h.refresh_inner(m, !same);
                 self.pattern_id = a.pattern_id();
                 self.refreshes += 1;
+                self.exact = false;
             }
             AmgSetup::Lagged => {
                 let h = self.amg.as_mut().expect("hierarchy");
                 h.update_fine(m, !same, Some(&a.diag), a.jacobi_bound());
                 self.pattern_id = a.pattern_id();
                 self.lagged += 1;
+                self.exact = false;
             }
             AmgSetup::Reused | AmgSetup::None => {}
         }
@@ -1780,6 +1787,12 @@ impl AmgCache {
                 self.ref_rate = rate;
                 if self.full_rate > 0.0 && rate > reuse.lag_factor * self.full_rate {
                     self.want = Want::Rebuild;
+                }
+            }
+            AmgSetup::Reused if self.exact => {
+                // the matrix the hierarchy was built from: nothing a setup could improve
+                if self.ref_rate == 0.0 {
+                    self.ref_rate = rate;
                 }
             }
             AmgSetup::Lagged | AmgSetup::Reused => {
