@@ -1297,7 +1297,6 @@ impl Amg {
         times.coarse = lap(&mut clock);
         self.stats.coarse_pinned = self.coarse.pinned();
         self.round_coarse();
-        times.coarse += lap(&mut clock);
         self.stats.times = times;
         self.stats.setup_seconds = t0.elapsed().as_secs_f64();
     }
