@@ -112,7 +112,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 10] = [
+const SWITCHES: [(&str, bool, &str); 11] = [
     (
         "skin",
         true,
@@ -162,6 +162,11 @@ const SWITCHES: [(&str, bool, &str); 10] = [
         "amg_single_precision",
         true,
         "AMG V-cycle reads f32 copies of its matrices' values",
+    ),
+    (
+        "viscous_adaptive",
+        true,
+        "viscous tolerance loosened up to rel_tol where the pressure's warm start is poor",
     ),
 ];
 
@@ -255,6 +260,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("reuse_diagnostics") => projection.reuse_diagnostics = false,
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,
         Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
+        Some("viscous_adaptive") => projection.solve.viscous_adaptive = false,
         Some("keep_pressure_gradient" | "amg_single_precision") => {}
         Some(other) => bail!("unknown switch {other:?}"),
     }

@@ -322,15 +322,54 @@ pub fn div_renormalised_into<const D: usize>(
         .for_each(|(i, o)| {
             // g[a][b] = (∇h ψ_a)_b
             let g = crate::operators::grad_vec_row(nl, vol, psi, i);
-            let b = &renorm.b[i];
-            let mut s = 0.0;
-            for a in 0..D {
-                for c in 0..D {
-                    s += b[a][c] * g[a][c];
-                }
-            }
-            *o = s;
+            *o = trace_product(&renorm.b[i], &g);
         });
+}
+
+/// [`div_renormalised_into`] that also returns `max_i ‖B_i‖_F Σ_j ω_j w_h(r_ij)/r_ij` over the
+/// rows `i` with `counted(i)` (0 when none is), read in the same pass over the pairs: the row
+/// sums of `|∇ᶜ·|` are `2d` times that at most (`|Σ_a (B_i x_ji)_a δe_a| ≤ ‖B_i‖ r_ij |δe|`).
+pub fn div_renormalised_gain_into<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    renorm: &Renormalisation<D>,
+    psi: &[[f64; D]],
+    out: &mut [f64],
+    counted: impl Fn(usize) -> bool + Sync,
+) -> f64 {
+    assert!(
+        out.len() <= renorm.b.len(),
+        "renormalisation computed for {} rows, {} requested",
+        renorm.b.len(),
+        out.len()
+    );
+    out.par_iter_mut()
+        .with_min_len(MIN_ROWS)
+        .enumerate()
+        .map(|(i, o)| {
+            let (g, row_sum) = crate::operators::grad_vec_row_gain(nl, vol, psi, i);
+            let b = &renorm.b[i];
+            *o = trace_product(b, &g);
+            if counted(i) {
+                let frobenius: f64 = b.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+                frobenius * row_sum
+            } else {
+                0.0
+            }
+        })
+        .reduce(|| 0.0, f64::max)
+}
+
+/// `Σ_{a,c} b[a][c] g[a][c]`.
+#[inline(always)]
+fn trace_product<const D: usize>(b: &[[f64; D]; D], g: &[[f64; D]; D]) -> f64 {
+    let mut s = 0.0;
+    for a in 0..D {
+        for c in 0..D {
+            s += b[a][c] * g[a][c];
+        }
+    }
+    s
 }
 
 /// Renormalised divergence at every row of `renorm`.
@@ -1285,16 +1324,55 @@ impl<const D: usize> LsOperators<D> {
         out.par_iter_mut()
             .with_min_len(MIN_ROWS)
             .enumerate()
-            .for_each(|(i, o)| {
-                let pi = psi[i];
-                let mut s = 0.0;
-                for k in nl.row(i) {
-                    let pj = self.vector(k, nl.indices()[k] as usize, psi);
-                    for a in 0..D {
-                        s += self.coef[k * Self::S + a] * (pj[a] - pi[a]);
-                    }
+            .for_each(|(i, o)| *o = self.div_row::<false>(nl, psi, i).0);
+    }
+
+    /// [`Self::div_into`] that also returns `max_i Σ_k |c_k|` over the rows `i` with
+    /// `counted(i)` (0 when none is), `c_k` the pairs' gradient coefficients, read in the same
+    /// pass: the row sums of `|∇ˡˢ·|` are twice that at most.
+    pub fn div_gain_into(
+        &self,
+        nl: &NeighborList<D>,
+        psi: &[[f64; D]],
+        out: &mut [f64],
+        counted: impl Fn(usize) -> bool + Sync,
+    ) -> f64 {
+        self.check(out.len());
+        out.par_iter_mut()
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .map(|(i, o)| {
+                let (div, row_sum) = self.div_row::<true>(nl, psi, i);
+                *o = div;
+                if counted(i) {
+                    row_sum
+                } else {
+                    0.0
                 }
-                *o = s;
-            });
+            })
+            .reduce(|| 0.0, f64::max)
+    }
+
+    /// Row `i` of `∇ˡˢ·ψ` and, with `GAIN`, `Σ_k |c_k|` (0 without).
+    #[inline(always)]
+    fn div_row<const GAIN: bool>(
+        &self,
+        nl: &NeighborList<D>,
+        psi: &[[f64; D]],
+        i: usize,
+    ) -> (f64, f64) {
+        let pi = psi[i];
+        let (mut s, mut g) = (0.0, 0.0);
+        for k in nl.row(i) {
+            let pj = self.vector(k, nl.indices()[k] as usize, psi);
+            let c = &self.coef[k * Self::S..k * Self::S + D];
+            for a in 0..D {
+                s += c[a] * (pj[a] - pi[a]);
+            }
+            if GAIN {
+                g += c.iter().map(|v| v * v).sum::<f64>().sqrt();
+            }
+        }
+        (s, g)
     }
 }

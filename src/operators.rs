@@ -31,24 +31,60 @@ pub fn div_sum_into<const D: usize>(
     psi: &[[f64; D]],
     out: &mut [f64],
 ) {
-    let d = D as f64;
     out.par_iter_mut()
         .with_min_len(MIN_ROWS)
         .enumerate()
-        .for_each(|(i, o)| {
-            let pi = psi[i];
-            let mut s = 0.0;
-            for k in nl.row(i) {
-                let j = nl.indices()[k] as usize;
-                let dx = &nl.dx()[k];
-                let mut dot = 0.0;
-                for a in 0..D {
-                    dot += (psi[j][a] + pi[a]) * dx[a];
-                }
-                s += vol[j] * dot * nl.wr2()[k];
+        .for_each(|(i, o)| *o = div_sum_row::<D, false>(nl, vol, psi, i).0);
+}
+
+/// [`div_sum_into`] that also returns `max_i Σ_j ω_j w_h(r_ij)/r_ij` over the rows `i` with
+/// `counted(i)` (0 when none is): the row sums of `|∇̂h·|` are `2d` times that at most, read in
+/// the same pass over the pairs.
+pub fn div_sum_gain_into<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    psi: &[[f64; D]],
+    out: &mut [f64],
+    counted: impl Fn(usize) -> bool + Sync,
+) -> f64 {
+    out.par_iter_mut()
+        .with_min_len(MIN_ROWS)
+        .enumerate()
+        .map(|(i, o)| {
+            let (div, row_sum) = div_sum_row::<D, true>(nl, vol, psi, i);
+            *o = div;
+            if counted(i) {
+                row_sum
+            } else {
+                0.0
             }
-            *o = d * s;
-        });
+        })
+        .reduce(|| 0.0, f64::max)
+}
+
+/// Row `i` of `∇̂h·ψ` and, with `GAIN`, `Σ_j ω_j w_h(r_ij)/r_ij` (0 without).
+#[inline(always)]
+fn div_sum_row<const D: usize, const GAIN: bool>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    psi: &[[f64; D]],
+    i: usize,
+) -> (f64, f64) {
+    let pi = psi[i];
+    let (mut s, mut g) = (0.0, 0.0);
+    for k in nl.row(i) {
+        let j = nl.indices()[k] as usize;
+        let dx = &nl.dx()[k];
+        let mut dot = 0.0;
+        for a in 0..D {
+            dot += (psi[j][a] + pi[a]) * dx[a];
+        }
+        s += vol[j] * dot * nl.wr2()[k];
+        if GAIN {
+            g += vol[j] * nl.wr2()[k] * norm2(dx).sqrt();
+        }
+    }
+    (D as f64 * s, g)
 }
 
 /// Difference-form divergence `d Σ ω_j (ψ_j − ψ_i)·(x_j − x_i) a'_ij` (the trace of the
@@ -234,8 +270,30 @@ pub fn grad_vec_row<const D: usize>(
     u: &[[f64; D]],
     i: usize,
 ) -> [[f64; D]; D] {
+    grad_vec_row_impl::<D, false>(nl, vol, u, i).0
+}
+
+/// [`grad_vec_row`] and `Σ_j ω_j w_h(r_ij)/r_ij` of row `i` from the same pass over its pairs.
+#[inline]
+pub fn grad_vec_row_gain<const D: usize>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    u: &[[f64; D]],
+    i: usize,
+) -> ([[f64; D]; D], f64) {
+    grad_vec_row_impl::<D, true>(nl, vol, u, i)
+}
+
+#[inline(always)]
+fn grad_vec_row_impl<const D: usize, const GAIN: bool>(
+    nl: &NeighborList<D>,
+    vol: &[f64],
+    u: &[[f64; D]],
+    i: usize,
+) -> ([[f64; D]; D], f64) {
     let ui = u[i];
     let mut s = [[0.0; D]; D];
+    let mut g = 0.0;
     for k in nl.row(i) {
         let j = nl.indices()[k] as usize;
         let c = vol[j] * nl.wr2()[k];
@@ -246,6 +304,9 @@ pub fn grad_vec_row<const D: usize>(
                 s[a][b] += du * dx[b];
             }
         }
+        if GAIN {
+            g += c * norm2(dx).sqrt();
+        }
     }
     let d = D as f64;
     for row in s.iter_mut() {
@@ -253,7 +314,7 @@ pub fn grad_vec_row<const D: usize>(
             *v *= d;
         }
     }
-    s
+    (s, g)
 }
 
 /// Velocity-gradient tensor by the difference gradient, `G_i[a][b] = (∇h u_a)_b` into `out`.

@@ -102,7 +102,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// `Σ v_i²`, split at fixed lengths (see `MIN_LEN`).
-fn sum_squares(v: &[f64]) -> f64 {
+pub(crate) fn sum_squares(v: &[f64]) -> f64 {
     dot(v, v)
 }
 

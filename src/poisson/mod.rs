@@ -98,6 +98,20 @@ pub struct SolveParams {
     /// put the guess 2.7·10⁻⁴ off (against 2·10⁻⁷) and the next three solves took 11–12 AMG-CG
     /// iterations instead of 6.
     pub viscous_rel_tol: f64,
+    /// Loosen the viscous solve's tolerance, up to `rel_tol`, by as much as the pressure's
+    /// warm start can bear (default true): the projection sets the next viscous solve's
+    /// tolerance to `θ ρ ‖∇̂h·u*‖ / (G ‖u*‖)` within `[min(rel_tol, viscous_rel_tol), rel_tol]`,
+    /// with `ρ` the last Poisson solve's `‖b − K φ₀‖/‖b‖` by CG ([`SolveInfo::initial_rel_residual`]),
+    /// `G` a bound of the sum-form divergence's gain on a velocity error
+    /// ([`crate::projection::stages::divergence_gain_into`]) and `θ = 0.1`, so that the viscous error moves the
+    /// Poisson source by at most a tenth of the warm start's own residual. Where that residual
+    /// is small (fixed particles, the pure Lagrangian frame: `ρ ≈ 10⁻⁷`) the tolerance stays at
+    /// `viscous_rel_tol`; where the particles are shifted every step (`ρ ≈ 5·10⁻²` at 2D 10⁵)
+    /// it rises to `rel_tol`. Only with a source other than the adjoint one (which has no bound
+    /// `G`), a Poisson solve by CG or AMG-CG, a viscous solve by CG and in a single process
+    /// (a decomposed run keeps `viscous_rel_tol`: every rank must stop its global CG at the same
+    /// tolerance).
+    pub viscous_adaptive: bool,
     /// CG: iteration limit (default 10 000).
     pub max_iters: usize,
     /// CG: start from the previous solution held in `phi` (default true).
@@ -225,6 +239,7 @@ impl Default for SolveParams {
             rel_tol: 1e-10,
             abs_tol: 0.0,
             viscous_rel_tol: 1e-12,
+            viscous_adaptive: true,
             max_iters: 10_000,
             warm_start: true,
             reuse_symbolic: true,
@@ -257,6 +272,9 @@ pub struct SolveInfo {
     pub abs_residual: f64,
     /// `‖ω∘b − K x‖₂ / ‖ω∘b‖₂`.
     pub rel_residual: f64,
+    /// `‖ω∘b − K x₀‖₂ / ‖ω∘b‖₂` of the initial guess `x₀` (CG and AMG-CG in one process; 0
+    /// otherwise): how far the warm start was off.
+    pub initial_rel_residual: f64,
     /// Floating components (each had its right side projected and its mean fixed).
     pub floating: usize,
     /// Largest `|Σ_C ω_i b_i| / Σ_C |ω_i b_i|` over floating components `C` before projection:
@@ -732,6 +750,10 @@ impl PoissonSolver {
                     info.iters = r.iters;
                     info.abs_residual = r.abs_residual;
                     info.rel_residual = r.rel_residual;
+                    let b_norm = iterative::sum_squares(&self.b).sqrt();
+                    if b_norm > 0.0 {
+                        info.initial_rel_residual = r.initial_residual / b_norm;
+                    }
                 }
             }
         }

@@ -826,6 +826,13 @@ pub struct ProjectionStep<const D: usize> {
     band_phi: Vec<f64>,
     /// The moving walls' ghost partners of [`VectorKind::RestWallsLinear`].
     linear_ghosts: stages::LinearGhosts,
+    /// The next viscous solve's tolerance before its clamp ([`SolveParams::viscous_adaptive`];
+    /// 0: the rule does not apply) and the divergence's gain bound it was computed with
+    /// ([`stages::divergence_gain_into`]; 0: not measured yet). The bound is measured again in
+    /// the source's pass whenever the last candidate lay above a tenth of the tight tolerance,
+    /// and kept otherwise: below that it cannot matter.
+    viscous_loosen: f64,
+    div_gain: f64,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -849,6 +856,18 @@ impl<const D: usize> ProjectionStep<D> {
             return (&[], &[], &[]);
         }
         (&self.source_divergence, &self.rhs, &self.disconnected)
+    }
+
+    /// The solve parameters of the implicit viscous solve: `params` with `viscous_rel_tol`
+    /// loosened to the last projection's candidate within `[min(rel_tol, viscous_rel_tol),
+    /// rel_tol]` ([`SolveParams::viscous_adaptive`]).
+    fn viscous_params(&self, params: &SolveParams) -> SolveParams {
+        let mut v = *params;
+        if params.viscous_adaptive && self.viscous_loosen > 0.0 {
+            let tight = params.rel_tol.min(params.viscous_rel_tol);
+            v.viscous_rel_tol = self.viscous_loosen.clamp(tight, params.rel_tol);
+        }
+        v
     }
 
     /// The last implicit viscous solve (default when none ran).
@@ -1567,6 +1586,7 @@ impl<const D: usize> ProjectionStep<D> {
                 }
                 _ => ([1.0; D], [0.0; D]),
             };
+            let solve = self.viscous_params(&params.solve);
             let info = self.viscous.solve_with_poisson(
                 poisson,
                 nl,
@@ -1576,7 +1596,7 @@ impl<const D: usize> ProjectionStep<D> {
                 theta * dt * params.nu,
                 &r,
                 u_star,
-                &params.solve,
+                &solve,
             );
             self.work_vec2 = r;
             self.viscous_info = info?;
@@ -1740,19 +1760,39 @@ impl<const D: usize> ProjectionStep<D> {
             &self.u_star,
             f,
         );
-        stages::divergence_into(
-            nl,
-            vol,
-            &particles.x,
-            role,
-            boundary,
-            params.source_ghosts,
-            plan.source,
-            &mut self.gradient,
-            f,
-            &mut self.work_vec,
-            &mut self.rhs,
-        );
+        // the adaptive viscous tolerance's divergence gain, measured in the source's pass while
+        // the last step's candidate could matter (see `viscous_candidate`)
+        let adaptive = params.solve.viscous_adaptive && self.halo.is_none();
+        let tight = params.solve.rel_tol.min(params.solve.viscous_rel_tol);
+        if adaptive && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * tight) {
+            self.div_gain = stages::divergence_gain_into(
+                nl,
+                vol,
+                &particles.x,
+                role,
+                boundary,
+                params.source_ghosts,
+                plan.source,
+                &mut self.gradient,
+                f,
+                &mut self.work_vec,
+                &mut self.rhs,
+            );
+        } else {
+            stages::divergence_into(
+                nl,
+                vol,
+                &particles.x,
+                role,
+                boundary,
+                params.source_ghosts,
+                plan.source,
+                &mut self.gradient,
+                f,
+                &mut self.work_vec,
+                &mut self.rhs,
+            );
+        }
         if let Some(s) = &self.singular {
             // the regular part's source: the divergence of −(ρ/Δt) u_s subtracted
             subtract_divergence(
@@ -1795,6 +1835,18 @@ impl<const D: usize> ProjectionStep<D> {
             stages::set_band_values(role, &self.band_phi, &mut self.phi);
         }
         self.warm.judge(&self.phi, role);
+        // θ ρ ‖∇̂h·u*‖ / (G ‖u*‖), `SolveParams::viscous_adaptive`
+        let (rho0, du, u) = (
+            report.solve.initial_rel_residual,
+            report.div_before,
+            f_l2 * dt / rho,
+        );
+        self.viscous_loosen =
+            if adaptive && rho0 > 0.0 && du > 0.0 && u > 0.0 && self.div_gain > 0.0 {
+                0.1 * rho0 * du / (self.div_gain * u)
+            } else {
+                0.0
+            };
         report.timings.solve = t.elapsed().as_secs_f64();
 
         // 5. correction and pressure update, into scratch (u and p untouched until it is checked)
