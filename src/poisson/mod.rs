@@ -101,7 +101,9 @@ pub struct SolveParams {
     /// Loosen the viscous solve's tolerance, up to `rel_tol`, by as much as the pressure's
     /// warm start can bear (default true): the projection sets the next viscous solve's
     /// tolerance to `θ ρ ‖∇̂h·u*‖ / (G ‖u*‖)` within `[min(rel_tol, viscous_rel_tol), rel_tol]`,
-    /// with `ρ` the last Poisson solve's `‖b − K φ₀‖/‖b‖` by CG ([`SolveInfo::initial_rel_residual`]),
+    /// with `ρ` the last Poisson solve's `‖b − K φ₀‖/‖b‖` by CG ([`SolveInfo::initial_rel_residual`];
+    /// while it falls from step to step, a warm start still settling, `ρ² / ρ_before`: the
+    /// viscous error stays in the history the next guesses extrapolate from),
     /// `G` a bound of the sum-form divergence's gain on a velocity error
     /// ([`crate::projection::stages::divergence_gain_into`]) and `θ = 0.1`, so that the viscous error moves the
     /// Poisson source by at most a tenth of the warm start's own residual. Where that residual

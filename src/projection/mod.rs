@@ -830,9 +830,11 @@ pub struct ProjectionStep<const D: usize> {
     /// 0: the rule does not apply) and the divergence's gain bound it was computed with
     /// ([`stages::divergence_gain_into`]; 0: not measured yet). The bound is measured again in
     /// the source's pass whenever the last candidate lay above a tenth of the tight tolerance,
-    /// and kept otherwise: below that it cannot matter.
+    /// and kept otherwise: below that it cannot matter. `rho_last`: the last Poisson solve's
+    /// `initial_rel_residual`.
     viscous_loosen: f64,
     div_gain: f64,
+    rho_last: f64,
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -1835,15 +1837,22 @@ impl<const D: usize> ProjectionStep<D> {
             stages::set_band_values(role, &self.band_phi, &mut self.phi);
         }
         self.warm.judge(&self.phi, role);
-        // θ ρ ‖∇̂h·u*‖ / (G ‖u*‖), `SolveParams::viscous_adaptive`
+        // θ ρ ‖∇̂h·u*‖ / (G ‖u*‖), `SolveParams::viscous_adaptive`, with ρ carried one step on
+        // while it falls (a warm start still settling: the viscous error stays in the history
+        // its next guesses extrapolate)
         let (rho0, du, u) = (
             report.solve.initial_rel_residual,
             report.div_before,
             f_l2 * dt / rho,
         );
+        let rho_next = match self.rho_last {
+            last if last > 0.0 => rho0 * (rho0 / last).min(1.0),
+            _ => rho0,
+        };
+        self.rho_last = rho0;
         self.viscous_loosen =
             if adaptive && rho0 > 0.0 && du > 0.0 && u > 0.0 && self.div_gain > 0.0 {
-                0.1 * rho0 * du / (self.div_gain * u)
+                0.1 * rho_next * du / (self.div_gain * u)
             } else {
                 0.0
             };
