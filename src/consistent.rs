@@ -343,21 +343,13 @@ pub fn div_renormalised_gain_into<const D: usize>(
         renorm.b.len(),
         out.len()
     );
-    out.par_iter_mut()
-        .with_min_len(MIN_ROWS)
-        .enumerate()
-        .map(|(i, o)| {
-            let (g, row_sum) = crate::operators::grad_vec_row_gain(nl, vol, psi, i);
-            let b = &renorm.b[i];
-            *o = trace_product(b, &g);
-            if counted(i) {
-                let frobenius: f64 = b.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
-                frobenius * row_sum
-            } else {
-                0.0
-            }
-        })
-        .reduce(|| 0.0, f64::max)
+    let row = |i: usize| {
+        let (g, row_sum) = crate::operators::grad_vec_row_gain(nl, vol, psi, i);
+        let b = &renorm.b[i];
+        let frobenius: f64 = b.iter().flatten().map(|v| v * v).sum::<f64>().sqrt();
+        (trace_product(b, &g), frobenius * row_sum)
+    };
+    crate::operators::rows_and_max(out, row, counted)
 }
 
 /// `Σ_{a,c} b[a][c] g[a][c]`.
@@ -1338,19 +1330,7 @@ impl<const D: usize> LsOperators<D> {
         counted: impl Fn(usize) -> bool + Sync,
     ) -> f64 {
         self.check(out.len());
-        out.par_iter_mut()
-            .with_min_len(MIN_ROWS)
-            .enumerate()
-            .map(|(i, o)| {
-                let (div, row_sum) = self.div_row::<true>(nl, psi, i);
-                *o = div;
-                if counted(i) {
-                    row_sum
-                } else {
-                    0.0
-                }
-            })
-            .reduce(|| 0.0, f64::max)
+        crate::operators::rows_and_max(out, |i| self.div_row::<true>(nl, psi, i), counted)
     }
 
     /// Row `i` of `∇ˡˢ·ψ` and, with `GAIN`, `Σ_k |c_k|` (0 without).

@@ -47,14 +47,24 @@ pub fn div_sum_gain_into<const D: usize>(
     out: &mut [f64],
     counted: impl Fn(usize) -> bool + Sync,
 ) -> f64 {
+    rows_and_max(out, |i| div_sum_row::<D, true>(nl, vol, psi, i), counted)
+}
+
+/// `out[i] = row(i).0` for every row (in parallel), and the largest `row(i).1` over the rows
+/// with `counted(i)` (0 when none is): an operator and a bound of its rows read in one pass.
+pub(crate) fn rows_and_max(
+    out: &mut [f64],
+    row: impl Fn(usize) -> (f64, f64) + Sync,
+    counted: impl Fn(usize) -> bool + Sync,
+) -> f64 {
     out.par_iter_mut()
         .with_min_len(MIN_ROWS)
         .enumerate()
         .map(|(i, o)| {
-            let (div, row_sum) = div_sum_row::<D, true>(nl, vol, psi, i);
-            *o = div;
+            let (value, bound) = row(i);
+            *o = value;
             if counted(i) {
-                row_sum
+                bound
             } else {
                 0.0
             }

@@ -1763,37 +1763,26 @@ impl<const D: usize> ProjectionStep<D> {
             f,
         );
         // the adaptive viscous tolerance's divergence gain, measured in the source's pass while
-        // the last step's candidate could matter (see `viscous_candidate`)
+        // the last step's candidate could matter (see `viscous_loosen`)
         let adaptive = params.solve.viscous_adaptive && self.halo.is_none();
         let tight = params.solve.rel_tol.min(params.solve.viscous_rel_tol);
-        if adaptive && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * tight) {
-            self.div_gain = stages::divergence_gain_into(
-                nl,
-                vol,
-                &particles.x,
-                role,
-                boundary,
-                params.source_ghosts,
-                plan.source,
-                &mut self.gradient,
-                f,
-                &mut self.work_vec,
-                &mut self.rhs,
-            );
-        } else {
-            stages::divergence_into(
-                nl,
-                vol,
-                &particles.x,
-                role,
-                boundary,
-                params.source_ghosts,
-                plan.source,
-                &mut self.gradient,
-                f,
-                &mut self.work_vec,
-                &mut self.rhs,
-            );
+        let measure = adaptive && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * tight);
+        let gain = stages::divergence_gain_into(
+            nl,
+            vol,
+            &particles.x,
+            role,
+            boundary,
+            params.source_ghosts,
+            plan.source,
+            &mut self.gradient,
+            f,
+            &mut self.work_vec,
+            &mut self.rhs,
+            measure,
+        );
+        if measure {
+            self.div_gain = gain;
         }
         if let Some(s) = &self.singular {
             // the regular part's source: the divergence of −(ρ/Δt) u_s subtracted

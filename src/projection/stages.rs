@@ -188,29 +188,9 @@ pub fn divergence_into<const D: usize>(
     work: &mut Vec<[f64; D]>,
     out: &mut Vec<f64>,
 ) {
-    let renorm = &mut ops.renorm;
-    let n = nl.len();
-    out.resize(n, 0.0);
-    match kind {
-        SourceKind::SumForm => div_sum_into(nl, vol, v, out),
-        SourceKind::AdjointBt => {
-            renorm.update(nl, vol, n);
-            work.resize(n, [0.0; D]);
-            renorm.apply_transpose_into(v, work);
-            if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
-                boundary.fill_vector_at(x, role, work, ghost_rule);
-            }
-            div_sum_into(nl, vol, work, out);
-        }
-        SourceKind::Renormalised => {
-            renorm.update(nl, vol, n);
-            div_renormalised_into(nl, vol, renorm, v, out);
-        }
-        SourceKind::LeastSquares => {
-            ops.update_walls(nl, vol, Some((x, role)));
-            ops.ls_walls.div_into(nl, v, out);
-        }
-    }
+    divergence_gain_into(
+        nl, vol, x, role, boundary, ghost_rule, kind, ops, v, work, out, false,
+    );
 }
 
 /// [`divergence_into`] and, from the same pass over the pairs, a bound `G` of the divergence's
@@ -222,7 +202,8 @@ pub fn divergence_into<const D: usize>(
 /// near-symmetry its `1`-norm, the volumes' spread the weighting). The projection compares it
 /// with the divergence's gain on `u*` to know how much of a viscous solve's error reaches the
 /// Poisson source ([`crate::poisson::SolveParams::viscous_adaptive`]). `G` is 0 for
-/// [`SourceKind::AdjointBt`] (no bound is taken) and when there is no fluid particle.
+/// [`SourceKind::AdjointBt`] (no bound is taken), when there is no fluid particle and without
+/// `measure` (the divergence alone, [`divergence_into`]).
 #[allow(clippy::too_many_arguments)]
 pub fn divergence_gain_into<const D: usize>(
     nl: &NeighborList<D>,
@@ -236,28 +217,50 @@ pub fn divergence_gain_into<const D: usize>(
     v: &[[f64; D]],
     work: &mut Vec<[f64; D]>,
     out: &mut Vec<f64>,
+    measure: bool,
 ) -> f64 {
-    let n = nl.len();
+    let (n, d) = (nl.len(), D as f64);
     let fluid = |i: usize| role[i].is_fluid();
     out.resize(n, 0.0);
-    let d = D as f64;
+    let renorm = &mut ops.renorm;
     let row_sum = match kind {
-        SourceKind::SumForm => 2.0 * d * div_sum_gain_into(nl, vol, v, out, fluid),
+        SourceKind::SumForm if measure => 2.0 * d * div_sum_gain_into(nl, vol, v, out, fluid),
+        SourceKind::SumForm => {
+            div_sum_into(nl, vol, v, out);
+            0.0
+        }
+        SourceKind::AdjointBt => {
+            renorm.update(nl, vol, n);
+            work.resize(n, [0.0; D]);
+            renorm.apply_transpose_into(v, work);
+            if boundary.has_ghosts() && ghost_rule != VectorKind::Velocity {
+                boundary.fill_vector_at(x, role, work, ghost_rule);
+            }
+            div_sum_into(nl, vol, work, out);
+            0.0
+        }
         SourceKind::Renormalised => {
-            ops.renorm.update(nl, vol, n);
-            2.0 * d * div_renormalised_gain_into(nl, vol, &ops.renorm, v, out, fluid)
+            renorm.update(nl, vol, n);
+            if measure {
+                2.0 * d * div_renormalised_gain_into(nl, vol, renorm, v, out, fluid)
+            } else {
+                div_renormalised_into(nl, vol, renorm, v, out);
+                0.0
+            }
         }
         SourceKind::LeastSquares => {
             ops.update_walls(nl, vol, Some((x, role)));
-            2.0 * ops.ls_walls.div_gain_into(nl, v, out, fluid)
-        }
-        SourceKind::AdjointBt => {
-            divergence_into(
-                nl, vol, x, role, boundary, ghost_rule, kind, ops, v, work, out,
-            );
-            return 0.0;
+            if measure {
+                2.0 * ops.ls_walls.div_gain_into(nl, v, out, fluid)
+            } else {
+                ops.ls_walls.div_into(nl, v, out);
+                0.0
+            }
         }
     };
+    if row_sum == 0.0 {
+        return 0.0;
+    }
     let (lo, hi) = (0..n)
         .into_par_iter()
         .with_min_len(4096)
