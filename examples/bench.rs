@@ -80,7 +80,9 @@ enum Frame {
     Fixed,
     /// The pure Lagrangian frame on the exact lattice, no shifting.
     Moving,
-    /// The Lagrangian Taylor–Green as its scene runs it: jitter and the default shifting.
+    /// The Lagrangian Taylor–Green's particles as its scene moves them (jitter and the default
+    /// shifting), with the GPM operators of the other frames (the scene's own moving runs take
+    /// the consistent ones, which cost more: README, Performance).
     Shifted,
 }
 
