@@ -100,19 +100,20 @@ pub struct SolveParams {
     pub viscous_rel_tol: f64,
     /// Loosen the viscous solve's tolerance, up to `rel_tol`, by as much as the pressure's
     /// warm start can bear (default true): the projection sets the next viscous solve's
-    /// tolerance to `θ ρ ‖∇̂h·u*‖ / (G ‖u*‖)` within `[min(rel_tol, viscous_rel_tol), rel_tol]`,
-    /// with `ρ` the last Poisson solve's `‖b − K φ₀‖/‖b‖` by CG ([`SolveInfo::initial_rel_residual`];
-    /// while it falls from step to step, a warm start still settling, `ρ² / ρ_before`: the
-    /// viscous error stays in the history the next guesses extrapolate from),
-    /// `G` a bound of the sum-form divergence's gain on a velocity error
-    /// ([`crate::projection::stages::divergence_gain_into`]) and `θ = 0.1`, so that the viscous error moves the
-    /// Poisson source by at most a tenth of the warm start's own residual. Where that residual
-    /// is small (fixed particles, the pure Lagrangian frame: `ρ ≈ 10⁻⁷`) the tolerance stays at
+    /// tolerance to `θ ρ ‖Du*‖ / (G ‖u*‖)` within `[min(rel_tol, viscous_rel_tol), rel_tol]`,
+    /// with `D` the source's divergence, `ρ` the last Poisson solve's `‖b − K φ₀‖/‖b‖` by CG
+    /// ([`SolveInfo::initial_rel_residual`]; while it falls from step to step — a warm start
+    /// still settling — `ρ²/ρ_before`: the viscous error stays in the history the next guesses
+    /// extrapolate from), `G` a bound of `D`'s gain on a velocity error
+    /// ([`crate::projection::stages::divergence_gain_into`]) and `θ = 0.1`, so that the viscous
+    /// error moves the Poisson source by at most a tenth of the warm start's own residual
+    /// (`‖Du*‖` and `‖u*‖` as the step measures them). Where that residual is small (fixed
+    /// particles, the pure Lagrangian frame: `ρ ≈ 10⁻⁷`) the tolerance stays at
     /// `viscous_rel_tol`; where the particles are shifted every step (`ρ ≈ 5·10⁻²` at 2D 10⁵)
     /// it rises to `rel_tol`. Only with a source other than the adjoint one (which has no bound
     /// `G`), a Poisson solve by CG or AMG-CG, a viscous solve by CG and in a single process
-    /// (a decomposed run keeps `viscous_rel_tol`: every rank must stop its global CG at the same
-    /// tolerance).
+    /// (a decomposed run keeps `viscous_rel_tol`: every rank must stop its global CG at the
+    /// same tolerance).
     pub viscous_adaptive: bool,
     /// CG: iteration limit (default 10 000).
     pub max_iters: usize,
