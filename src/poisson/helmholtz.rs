@@ -365,7 +365,7 @@ impl HelmholtzSolver {
             }
         }
         // tighter than the pressure's (see `SolveParams::viscous_rel_tol`)
-        let viscous_tol = params.rel_tol.min(params.viscous_rel_tol);
+        let viscous_tol = params.viscous_tol();
         match kind {
             SolverKind::Cholesky | SolverKind::Auto => {
                 // one solve per component: faer's multi-column triangular solve measured

@@ -175,6 +175,12 @@ pub struct SolveParams {
 }
 
 impl SolveParams {
+    /// The implicit viscous solve's tolerance, `min(rel_tol, viscous_rel_tol)`: its stopping
+    /// test, and the tight end of the adaptive one ([`Self::viscous_adaptive`]).
+    pub fn viscous_tol(&self) -> f64 {
+        self.rel_tol.min(self.viscous_rel_tol)
+    }
+
     /// Checks the tolerances `rel_tol`, `abs_tol` and `viscous_rel_tol` (non-negative and finite), `max_iters`
     /// (at least 1) and `amg_lag_factor` (positive and finite), naming the first bad one by its
     /// key under `solve` (`solve.abs_tol`) and its value.

@@ -866,8 +866,9 @@ impl<const D: usize> ProjectionStep<D> {
     fn viscous_params(&self, params: &SolveParams) -> SolveParams {
         let mut v = *params;
         if params.viscous_adaptive && self.viscous_loosen > 0.0 {
-            let tight = params.rel_tol.min(params.viscous_rel_tol);
-            v.viscous_rel_tol = self.viscous_loosen.clamp(tight, params.rel_tol);
+            v.viscous_rel_tol = self
+                .viscous_loosen
+                .clamp(params.viscous_tol(), params.rel_tol);
         }
         v
     }
@@ -1765,8 +1766,8 @@ impl<const D: usize> ProjectionStep<D> {
         // the adaptive viscous tolerance's divergence gain, measured in the source's pass while
         // the last step's candidate could matter (see `viscous_loosen`)
         let adaptive = params.solve.viscous_adaptive && self.halo.is_none();
-        let tight = params.solve.rel_tol.min(params.solve.viscous_rel_tol);
-        let measure = adaptive && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * tight);
+        let measure = adaptive
+            && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * params.solve.viscous_tol());
         let gain = stages::divergence_gain_into(
             nl,
             vol,
