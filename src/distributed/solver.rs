@@ -792,6 +792,7 @@ impl<C: Comm> ExternalSolve for DistributedPoisson<C> {
             rel_residual: true_r / bnorm,
             initial_residual: r0,
             final_residual: rnorm,
+            b_norm: bnorm,
         })
     }
 }

@@ -155,6 +155,7 @@ impl HelmholtzSolver {
                     iters: t.iters + info.iters,
                     abs_residual: t.abs_residual.max(info.abs_residual),
                     rel_residual: t.rel_residual.max(info.rel_residual),
+                    initial_rel_residual: t.initial_rel_residual.max(info.initial_rel_residual),
                     pattern_rebuilt: t.pattern_rebuilt || info.pattern_rebuilt,
                     reused_symbolic: t.reused_symbolic && info.reused_symbolic,
                     reused_numeric: t.reused_numeric && info.reused_numeric,
@@ -294,8 +295,15 @@ impl HelmholtzSolver {
         // 5.3 s with Jacobi-CG), Jacobi-CG with warm start otherwise — H = W + cK is dominated
         // by the mass term W, so Jacobi converges in a few iterations, while a factor recomputed
         // every step (moving particles) costs far more (examples/bench). AMG-CG on request.
+        // tighter than the pressure's (see `SolveParams::viscous_rel_tol`), also for an
+        // external solver, which stops at its system's `rel_tol`
+        let viscous_tol = params.viscous_tol();
         if let Some(ext) = self.external.as_mut() {
             let t = Instant::now();
+            let params = &SolveParams {
+                rel_tol: viscous_tol,
+                ..*params
+            };
             self.b.resize(m * D, 0.0);
             self.x.resize(m * D, 0.0);
             let xs = nl.search_positions();
@@ -307,6 +315,7 @@ impl HelmholtzSolver {
                 nnz: a.nnz(),
                 pattern_rebuilt,
                 assemble_seconds,
+                rel_tol: viscous_tol,
                 ..Default::default()
             };
             for d in comps.clone() {
@@ -330,9 +339,7 @@ impl HelmholtzSolver {
                     weights: &weights,
                     periods: &nl.config().periodic.len,
                 })?;
-                info.iters += ri.iters;
-                info.abs_residual = info.abs_residual.max(ri.abs_residual);
-                info.rel_residual = info.rel_residual.max(ri.rel_residual);
+                info.add_component(&ri);
                 for (uix, &p) in a.particle.iter().enumerate() {
                     u[p as usize][d] = x[uix];
                 }
@@ -364,8 +371,9 @@ impl HelmholtzSolver {
                 self.b[d * m + uix] = v;
             }
         }
-        // tighter than the pressure's (see `SolveParams::viscous_rel_tol`)
-        let viscous_tol = params.viscous_tol();
+        if !matches!(kind, SolverKind::Cholesky | SolverKind::Auto) {
+            info.rel_tol = viscous_tol;
+        }
         match kind {
             SolverKind::Cholesky | SolverKind::Auto => {
                 // one solve per component: faer's multi-column triangular solve measured
@@ -428,9 +436,7 @@ impl HelmholtzSolver {
                     params.max_iters,
                 )?;
                 for ri in infos {
-                    info.iters += ri.iters;
-                    info.abs_residual = info.abs_residual.max(ri.abs_residual);
-                    info.rel_residual = info.rel_residual.max(ri.rel_residual);
+                    info.add_component(&ri);
                 }
                 info.solve_seconds = t.elapsed().as_secs_f64();
             }
@@ -476,9 +482,7 @@ impl HelmholtzSolver {
                         )?
                     };
                     first.get_or_insert(ri);
-                    info.iters += ri.iters;
-                    info.abs_residual = info.abs_residual.max(ri.abs_residual);
-                    info.rel_residual = info.rel_residual.max(ri.rel_residual);
+                    info.add_component(&ri);
                 }
                 info.solve_seconds = t.elapsed().as_secs_f64();
                 if let (SolverKind::Amg, Some(ri)) = (kind, first) {

@@ -39,6 +39,19 @@ pub struct CgInfo {
     pub initial_residual: f64,
     /// The recursively updated residual norm at the end (what the stopping test saw).
     pub final_residual: f64,
+    /// `‖b‖₂` (global in a decomposed solve; 0 when `b = 0`).
+    pub b_norm: f64,
+}
+
+impl CgInfo {
+    /// `‖b − K x₀‖₂ / ‖b‖₂`: how far the initial guess was off (0 when `b = 0`).
+    pub fn initial_rel_residual(&self) -> f64 {
+        if self.b_norm > 0.0 {
+            self.initial_residual / self.b_norm
+        } else {
+            0.0
+        }
+    }
 }
 
 /// A symmetric positive (semi-)definite approximation `B ≈ K⁻¹` applied as `z = B r`.
@@ -102,7 +115,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// `Σ v_i²`, split at fixed lengths (see `MIN_LEN`).
-pub(crate) fn sum_squares(v: &[f64]) -> f64 {
+fn sum_squares(v: &[f64]) -> f64 {
     dot(v, v)
 }
 
@@ -143,6 +156,7 @@ fn converged(
         rel_residual: true_r / bnorm,
         initial_residual: r0,
         final_residual: rnorm,
+        b_norm: bnorm,
     }
 }
 
@@ -435,6 +449,7 @@ pub fn pcg_multi_in<'a, const K: usize>(
         },
         initial_residual: r0[c],
         final_residual: rnorm[c],
+        b_norm: bnorm[c],
     }))
 }
 

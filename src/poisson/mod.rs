@@ -281,9 +281,14 @@ pub struct SolveInfo {
     pub abs_residual: f64,
     /// `‖ω∘b − K x‖₂ / ‖ω∘b‖₂`.
     pub rel_residual: f64,
-    /// `‖ω∘b − K x₀‖₂ / ‖ω∘b‖₂` of the initial guess `x₀` (CG and AMG-CG in one process; 0
-    /// otherwise): how far the warm start was off.
+    /// `‖ω∘b − K x₀‖₂ / ‖ω∘b‖₂` of the initial guess `x₀` (CG and AMG-CG, in one process or
+    /// decomposed; the largest over the components of a viscous solve; 0 for a direct
+    /// solve): how far the warm start was off.
     pub initial_rel_residual: f64,
+    /// The relative tolerance the iterative solve stopped at, `‖r‖₂ ≤ rel_tol ‖b‖₂` (the
+    /// Poisson solve's [`SolveParams::rel_tol`]; the viscous solve's, adaptive or not,
+    /// [`SolveParams::viscous_tol`]); 0 for a direct solve.
+    pub rel_tol: f64,
     /// Floating components (each had its right side projected and its mean fixed).
     pub floating: usize,
     /// Largest `|Σ_C ω_i b_i| / Σ_C |ω_i b_i|` over floating components `C` before projection:
@@ -311,6 +316,17 @@ pub struct SolveInfo {
     pub amg_operator_complexity: f64,
     /// Seconds: AMG setup of this solve (rebuild or refresh; 0 when reused or lagged).
     pub amg_setup_seconds: f64,
+}
+
+impl SolveInfo {
+    /// Adds one CG run over a component of a vector solve: iterations summed, residuals the
+    /// largest.
+    pub(crate) fn add_component(&mut self, r: &iterative::CgInfo) {
+        self.iters += r.iters;
+        self.abs_residual = self.abs_residual.max(r.abs_residual);
+        self.rel_residual = self.rel_residual.max(r.rel_residual);
+        self.initial_rel_residual = self.initial_rel_residual.max(r.initial_rel_residual());
+    }
 }
 
 /// The assembled system handed to an [`ExternalSolve`]: `K x = b` over the unknowns of `a`,
@@ -667,6 +683,8 @@ impl PoissonSolver {
             info.iters = r.iters;
             info.abs_residual = r.abs_residual;
             info.rel_residual = r.rel_residual;
+            info.initial_rel_residual = r.initial_rel_residual();
+            info.rel_tol = params.rel_tol;
         } else {
             match kind {
                 SolverKind::Cholesky => {
@@ -759,10 +777,8 @@ impl PoissonSolver {
                     info.iters = r.iters;
                     info.abs_residual = r.abs_residual;
                     info.rel_residual = r.rel_residual;
-                    let b_norm = iterative::sum_squares(&self.b).sqrt();
-                    if b_norm > 0.0 {
-                        info.initial_rel_residual = r.initial_residual / b_norm;
-                    }
+                    info.initial_rel_residual = r.initial_rel_residual();
+                    info.rel_tol = params.rel_tol;
                 }
             }
         }

@@ -409,6 +409,9 @@ pub struct StepReport {
     pub stability_ratio: f64,
     /// The Poisson solve.
     pub solve: SolveInfo,
+    /// The implicit viscous (Helmholtz) solve of the step's predictor, when one ran and
+    /// [`Prediction::add_to`] brought it here (`None` with explicit or no viscosity).
+    pub viscous: Option<SolveInfo>,
     /// `‖D u*‖_ℓ2(Ω)`, `D` the source's divergence ([`SourceKind`]), measured as the source
     /// sees `u*`: zero on the Dirichlet band, ghosts continued as for the source.
     pub div_before: f64,
@@ -439,11 +442,13 @@ pub struct Prediction {
 }
 
 impl Prediction {
-    /// Adds the predictor's timings to the report of the [`ProjectionStep::project`] that
-    /// followed it (`timings.predictor`, and its checks to `timings.diagnostics`).
+    /// Adds the predictor's timings and its viscous solve to the report of the
+    /// [`ProjectionStep::project`] that followed it (`timings.predictor`, its checks to
+    /// `timings.diagnostics`, the solve to `viscous`).
     pub fn add_to(&self, report: &mut StepReport) {
         report.timings.predictor = self.seconds;
         report.timings.diagnostics += self.diagnostics_seconds;
+        report.viscous = self.viscous;
     }
 }
 
