@@ -10,7 +10,8 @@
 //! at all (garbage, other formats) are an error; an empty file is a file cut at byte 0.
 
 use super::schema::{
-    self, PointCloud, RunConfig, StepDiagnostics, TOPIC_CONFIG, TOPIC_DIAGNOSTICS, TOPIC_PARTICLES,
+    self, PointCloud, RunConfig, SolveDiagnostics, StepDiagnostics, TOPIC_CONFIG,
+    TOPIC_DIAGNOSTICS, TOPIC_PARTICLES,
 };
 use super::RecordError;
 use mcap::records::{op, Record};
@@ -651,6 +652,12 @@ pub struct ReplaySummary {
     pub solvers: Vec<String>,
     /// CG iterations per step.
     pub iterations: Stat,
+    /// The warm start's `‖b − K x₀‖/‖b‖` per step (CG solves).
+    pub initial_rel_residual: Stat,
+    /// The implicit viscous solve's iterations per step (steps that recorded one).
+    pub viscous_iterations: Stat,
+    /// The implicit viscous solve's stopping tolerance per step (steps that recorded one).
+    pub viscous_rel_tol: Stat,
     /// Relative residual per step.
     pub rel_residual: Stat,
     /// Absolute residual per step.
@@ -733,6 +740,17 @@ impl fmt::Display for ReplaySummary {
         )?;
         writeln!(f, "solver      {}", self.solvers.join(", "))?;
         writeln!(f, "iterations  {}", st(&self.iterations))?;
+        if self.initial_rel_residual.max > 0.0 {
+            writeln!(
+                f,
+                "warm start  {} (‖b − K x₀‖/‖b‖)",
+                st(&self.initial_rel_residual)
+            )?;
+        }
+        if self.viscous_iterations.max >= 0.0 {
+            writeln!(f, "viscous     iterations {}", st(&self.viscous_iterations))?;
+            writeln!(f, "            tolerance {}", st(&self.viscous_rel_tol))?;
+        }
         writeln!(f, "residual    relative {}", st(&self.rel_residual))?;
         writeln!(f, "            absolute {}", st(&self.abs_residual))?;
         writeln!(f, "div after   {}", st(&self.div_after))?;
@@ -842,6 +860,10 @@ impl Replay {
         solvers.dedup();
         out.solvers = solvers;
         out.iterations = Stat::of(s.iter().map(|d| d.solve.iterations as f64));
+        out.initial_rel_residual = Stat::of(s.iter().map(|d| d.solve.initial_rel_residual));
+        let viscous = || s.iter().filter_map(|d| d.viscous.as_ref());
+        out.viscous_iterations = Stat::of(viscous().map(|v| v.iterations as f64));
+        out.viscous_rel_tol = Stat::of(viscous().map(|v| v.rel_tol));
         out.rel_residual = Stat::of(s.iter().map(|d| d.solve.rel_residual));
         out.abs_residual = Stat::of(s.iter().map(|d| d.solve.abs_residual));
         out.div_after = Stat::of(s.iter().map(|d| d.div_after));
@@ -886,19 +908,25 @@ impl Replay {
              connectivity_ok,c0,stability_ratio,min_spacing,correction_ratio,energy_growth,solver,unknowns,nnz,iterations,abs_residual,\
              rel_residual,compatibility_defect,div_before,div_after,kinetic_energy,max_speed,\
              neighbors_rebuilt,max_shift,volume_error,wall_pushes,t_neighbors,t_predictor,t_diagnostics,t_source,\
-             t_solve,t_correction,t_advect,t_total,t_record,surface_particles,splash_particles"
+             t_solve,t_correction,t_advect,t_total,t_record,surface_particles,splash_particles,\
+             initial_rel_residual,rel_tol,viscous_iterations,viscous_rel_residual,\
+             viscous_initial_rel_residual,viscous_rel_tol"
         )
         .map_err(io)?;
         for d in &self.steps {
             let c = &d.connectivity;
             let t = &d.timings;
+            // the viscous solve's cells, empty for a step without one
+            let viscous = |f: fn(&SolveDiagnostics) -> String| -> String {
+                d.viscous.as_ref().map(f).unwrap_or_default()
+            };
             let dt_limit = serde_json::to_value(d.dt_limit)
                 .ok()
                 .and_then(|v| v.as_str().map(String::from))
                 .unwrap_or_default();
             writeln!(
                 w,
-                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 d.step,
                 Num(d.time),
                 Num(d.dt),
@@ -939,7 +967,13 @@ impl Replay {
                 Num(t.total),
                 Num(t.record),
                 d.surface_particles.map(|v| v.to_string()).unwrap_or_default(),
-                d.splash_particles.map(|v| v.to_string()).unwrap_or_default()
+                d.splash_particles.map(|v| v.to_string()).unwrap_or_default(),
+                Num(d.solve.initial_rel_residual),
+                Num(d.solve.rel_tol),
+                viscous(|v| v.iterations.to_string()),
+                viscous(|v| Num(v.rel_residual).to_string()),
+                viscous(|v| Num(v.initial_rel_residual).to_string()),
+                viscous(|v| Num(v.rel_tol).to_string())
             )
             .map_err(io)?;
         }

@@ -31,7 +31,7 @@ use crate::flow::{DtLimit, FlowReport};
 use crate::kernel::Weight;
 use crate::neighbors::{NeighborConfig, Periodicity};
 use crate::particles::Role;
-use crate::poisson::{AmgSetup, SolveParams, SolverKind};
+use crate::poisson::{AmgSetup, SolveInfo, SolveParams, SolverKind};
 use crate::projection::{Disconnected, SourceKind};
 use crate::projection::{ProjectionParams, Scheme, StepReport};
 use base64::Engine as _;
@@ -263,6 +263,16 @@ pub struct SolveDiagnostics {
     #[serde(deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
     pub rel_residual: f64,
+    /// `‖ω∘b − K x₀‖₂ / ‖ω∘b‖₂` of the initial guess: how far the warm start was off (0 for a
+    /// direct solve; absent in older logs: NaN).
+    #[serde(default = "nan", deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
+    pub initial_rel_residual: f64,
+    /// The relative tolerance the iterative solve stopped at (the viscous solve's adapts,
+    /// `SolveParams::viscous_adaptive`; 0 for a direct solve; absent in older logs: NaN).
+    #[serde(default = "nan", deserialize_with = "nullable")]
+    #[schemars(with = "Option<f64>")]
+    pub rel_tol: f64,
     /// Largest relative compatibility defect of a floating component (discrete Gauss theorem).
     #[serde(deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
@@ -303,6 +313,33 @@ pub struct SolveDiagnostics {
     #[serde(default, deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
     pub amg_setup_seconds: f64,
+}
+
+impl From<&SolveInfo> for SolveDiagnostics {
+    fn from(s: &SolveInfo) -> Self {
+        SolveDiagnostics {
+            solver: s.solver,
+            unknowns: s.unknowns,
+            nnz: s.nnz,
+            iterations: s.iters,
+            abs_residual: s.abs_residual,
+            rel_residual: s.rel_residual,
+            initial_rel_residual: s.initial_rel_residual,
+            rel_tol: s.rel_tol,
+            compatibility_defect: s.compatibility_defect,
+            pattern_rebuilt: s.pattern_rebuilt,
+            reused_symbolic: s.reused_symbolic,
+            reused_numeric: s.reused_numeric,
+            assemble_seconds: s.assemble_seconds,
+            symbolic_seconds: s.symbolic_seconds,
+            numeric_seconds: s.numeric_seconds,
+            iterate_seconds: s.solve_seconds,
+            amg_setup: s.amg_setup,
+            amg_levels: s.amg_levels,
+            amg_operator_complexity: s.amg_operator_complexity,
+            amg_setup_seconds: s.amg_setup_seconds,
+        }
+    }
 }
 
 /// Wall-clock seconds per stage of one step.
@@ -390,6 +427,10 @@ pub struct StepDiagnostics {
     pub energy_growth: Option<f64>,
     /// The Poisson solve.
     pub solve: SolveDiagnostics,
+    /// The implicit viscous solve of the predictor; `null` when none ran (explicit or no
+    /// viscosity, a loop that did not say) and in older logs.
+    #[serde(default)]
+    pub viscous: Option<SolveDiagnostics>,
     /// `‖∇̂h·u*‖_ℓ2(Ω)`.
     #[serde(deserialize_with = "nullable")]
     #[schemars(with = "Option<f64>")]
@@ -475,26 +516,8 @@ impl StepDiagnostics {
             min_spacing: p.min_spacing,
             correction_ratio: p.correction_ratio,
             energy_growth: ctx.energy_growth,
-            solve: SolveDiagnostics {
-                solver: p.solve.solver,
-                unknowns: p.solve.unknowns,
-                nnz: p.solve.nnz,
-                iterations: p.solve.iters,
-                abs_residual: p.solve.abs_residual,
-                rel_residual: p.solve.rel_residual,
-                compatibility_defect: p.solve.compatibility_defect,
-                pattern_rebuilt: p.solve.pattern_rebuilt,
-                reused_symbolic: p.solve.reused_symbolic,
-                reused_numeric: p.solve.reused_numeric,
-                assemble_seconds: p.solve.assemble_seconds,
-                symbolic_seconds: p.solve.symbolic_seconds,
-                numeric_seconds: p.solve.numeric_seconds,
-                iterate_seconds: p.solve.solve_seconds,
-                amg_setup: p.solve.amg_setup,
-                amg_levels: p.solve.amg_levels,
-                amg_operator_complexity: p.solve.amg_operator_complexity,
-                amg_setup_seconds: p.solve.amg_setup_seconds,
-            },
+            solve: SolveDiagnostics::from(&p.solve),
+            viscous: p.viscous.as_ref().map(SolveDiagnostics::from),
             div_before: p.div_before,
             div_after: p.div_after,
             kinetic_energy: p.kinetic_energy,
