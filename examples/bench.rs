@@ -369,7 +369,7 @@ fn run_case<const D: usize>(c: &Case) -> Result<Outcome> {
             continue;
         }
         let p = &r.projection;
-        let v = &sim.projection.viscous_info();
+        let v = &p.viscous.unwrap_or_default();
         let assembly = p.solve.assemble_seconds + v.assemble_seconds;
         let solve = p.solve.symbolic_seconds
             + p.solve.numeric_seconds
@@ -716,7 +716,10 @@ fn cavity_reuse(a: &Args) -> Result<()> {
             let r = sim.advance()?;
             let w = t.elapsed().as_secs_f64();
             if s >= warmup {
-                let (p, v) = (&r.projection.solve, &sim.projection.viscous_info());
+                let (p, v) = (
+                    &r.projection.solve,
+                    &r.projection.viscous.unwrap_or_default(),
+                );
                 wall += w;
                 neigh += r.neighbors_seconds;
                 assem += p.assemble_seconds + v.assemble_seconds;

@@ -106,7 +106,7 @@ fn counted_steps() {
             // the Poisson or the viscous solve's hierarchy built anew (the AMG lag policy)
             let rebuilt = [
                 r.projection.solve.amg_setup,
-                sim.projection.viscous_info().amg_setup,
+                r.projection.viscous.unwrap_or_default().amg_setup,
             ]
             .iter()
             .any(|s| matches!(s, AmgSetup::Rebuilt | AmgSetup::Refreshed));

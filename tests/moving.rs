@@ -1143,7 +1143,7 @@ fn the_viscous_tolerance_loosens_only_where_the_pressure_warm_start_is_poor() {
         let mut viscous_residual = Vec::new();
         for _ in 0..steps {
             let r = sim.advance().unwrap();
-            let v = sim.projection.viscous_info();
+            let v = r.projection.viscous.expect("an implicit viscous solve ran");
             assert_eq!(v.solver, SolverKind::Amg, "the viscous solve is iterative");
             poisson_iters += r.projection.solve.iters;
             viscous_iters += v.iters;

@@ -319,6 +319,15 @@ pub struct SolveInfo {
 }
 
 impl SolveInfo {
+    /// Takes the counts of the CG run of a scalar solve and the tolerance it was asked for.
+    pub(crate) fn set_cg(&mut self, r: &iterative::CgInfo, rel_tol: f64) {
+        self.iters = r.iters;
+        self.abs_residual = r.abs_residual;
+        self.rel_residual = r.rel_residual;
+        self.initial_rel_residual = r.initial_rel_residual();
+        self.rel_tol = rel_tol;
+    }
+
     /// Adds one CG run over a component of a vector solve: iterations summed, residuals the
     /// largest.
     pub(crate) fn add_component(&mut self, r: &iterative::CgInfo) {
@@ -680,11 +689,7 @@ impl PoissonSolver {
                 periods: &nl.config().periodic.len,
             })?;
             info.solve_seconds = t.elapsed().as_secs_f64();
-            info.iters = r.iters;
-            info.abs_residual = r.abs_residual;
-            info.rel_residual = r.rel_residual;
-            info.initial_rel_residual = r.initial_rel_residual();
-            info.rel_tol = params.rel_tol;
+            info.set_cg(&r, params.rel_tol);
         } else {
             match kind {
                 SolverKind::Cholesky => {
@@ -774,11 +779,7 @@ impl PoissonSolver {
                         info.solve_seconds = t.elapsed().as_secs_f64();
                         r
                     };
-                    info.iters = r.iters;
-                    info.abs_residual = r.abs_residual;
-                    info.rel_residual = r.rel_residual;
-                    info.initial_rel_residual = r.initial_rel_residual();
-                    info.rel_tol = params.rel_tol;
+                    info.set_cg(&r, params.rel_tol);
                 }
             }
         }
