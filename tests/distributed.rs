@@ -418,8 +418,7 @@ fn decomposed_viscous_solves_stop_at_the_viscous_tolerance() {
     let build = || {
         let mut s = vortex_moving_sim();
         s.params.projection.solve.rel_tol = 1e-8;
-        // one process would loosen its viscous tolerance where the warm start is poor; a
-        // decomposed run does not (its ranks would have to agree on it)
+        // the tight tolerance on every step (the adaptive rule is the next test's)
         s.params.projection.solve.viscous_adaptive = false;
         s
     };
@@ -461,6 +460,81 @@ fn decomposed_viscous_solves_stop_at_the_viscous_tolerance() {
     }
     // one process factorises the first steps' systems (Auto), then iterates
     assert!(compared >= 4, "{compared} steps by CG in one process");
+}
+
+/// The adaptive viscous tolerance ([`gpm::poisson::SolveParams::viscous_adaptive`]) in a
+/// decomposed run: every rank takes the next viscous solve's tolerance from the global sums
+/// (the largest gain bound over the ranks' own rows, `‖∇̂h·u*‖` and `‖u*‖` summed, the global
+/// warm-start residual), so the ranks stop their distributed viscous CG at the same tolerance,
+/// loosen it as one process does (iterative solves in both, so that both have a warm-start
+/// residual to read), and reach it. The pressure's tolerance is a loose 10⁻³, so that the
+/// candidate (10⁻⁴–10⁻⁶ on this flow) lies between its clamps and is what is compared. Without
+/// the global candidate a rank keeps the tight tolerance on every step.
+#[test]
+fn decomposed_runs_loosen_the_viscous_tolerance_as_one_process_does() {
+    use gpm::distributed::decomposed::DecomposedRun;
+    let build = || {
+        let mut s = vortex_moving_sim();
+        s.params.projection.solve.rel_tol = 1e-3;
+        s.params.projection.solve.solver = SolverKind::Cg;
+        assert!(
+            s.params.projection.solve.viscous_adaptive,
+            "the rule is on by default"
+        );
+        s
+    };
+    let mut serial = build();
+    let solve = serial.params.projection.solve;
+    let tight = solve.viscous_tol();
+    let steps = 30;
+    let want: Vec<_> = (0..steps)
+        .map(|_| serial.advance().unwrap().projection.viscous.unwrap())
+        .collect();
+    let got = ThreadComm::run(4, |comm| {
+        let mut run = DecomposedRun::new(comm, &build()).unwrap();
+        (0..steps)
+            .map(|_| run.advance().unwrap().projection.viscous.unwrap())
+            .collect::<Vec<_>>()
+    });
+    for (rank, steps) in got.iter().enumerate() {
+        for (k, (v, v0)) in steps.iter().zip(&got[0]).enumerate() {
+            assert_eq!(
+                v.rel_tol, v0.rel_tol,
+                "step {k}: rank {rank} against rank 0"
+            );
+        }
+    }
+    let mut loosened = 0;
+    for (k, (w, v)) in want.iter().zip(&got[0]).enumerate() {
+        assert!(
+            (tight..=solve.rel_tol).contains(&v.rel_tol),
+            "step {k}: viscous tolerance {:e} outside [{tight:e}, {:e}]",
+            v.rel_tol,
+            solve.rel_tol
+        );
+        assert!(
+            v.rel_residual <= 2.0 * v.rel_tol,
+            "step {k}: viscous residual {:e} against its tolerance {:e}",
+            v.rel_residual,
+            v.rel_tol
+        );
+        // the same rule on the same flow: the warm-start residuals differ as the two runs'
+        // pressures do, within the Poisson solves' tolerance
+        let ratio = v.rel_tol / w.rel_tol;
+        assert!(
+            (0.5..=2.0).contains(&ratio),
+            "step {k}: viscous tolerance {:e} on 4 ranks, {:e} in one process",
+            v.rel_tol,
+            w.rel_tol
+        );
+        if v.rel_tol > 1e3 * tight && v.rel_tol < solve.rel_tol {
+            loosened += 1;
+        }
+    }
+    assert!(
+        loosened >= steps / 2,
+        "loosened within the clamps on {loosened} of {steps} steps"
+    );
 }
 
 /// `gpm run` under `mpirun` for every scene: the scene run through [`Decomposed`] (its

@@ -49,7 +49,7 @@ use crate::flow::{
 };
 use crate::neighbors::NeighborConfig;
 use crate::particles::{Particles, Role};
-use crate::projection::{HaloSync, ProjectionStep};
+use crate::projection::{HaloSync, ProjectionStep, ViscousRule};
 use std::sync::{Arc, Mutex};
 
 /// Depth of the particle halo in `h + skin` for fixed particles: what an own row reads at
@@ -373,6 +373,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
                 .viscous
                 .set_warm_change(change, warm.viscous_c);
         }
+        *sim.projection.viscous_rule_mut() = warm.viscous_rule;
         (sim.time, sim.steps) = (clock.0, clock.1);
         sim.projection.solver.external = Some(Box::new(Shared(self.poisson.clone())));
         sim.projection.viscous.external = Some(Box::new(Shared(self.viscous.clone())));
@@ -403,12 +404,13 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Context<
 
 /// The solvers' warm-start histories to hand on besides the per-particle values of the
 /// records: the Poisson problem's last `Δt` once a step was taken and whether the increment
-/// before the last one is there too, and the `c` of the viscous solve's last change (0:
-/// none).
+/// before the last one is there too, the `c` of the viscous solve's last change (0:
+/// none), and the adaptive viscous tolerance's state.
 #[derive(Clone, Copy, Debug)]
 struct WarmHistory {
     poisson: Option<(f64, bool)>,
     viscous_c: f64,
+    viscous_rule: ViscousRule,
 }
 
 impl WarmHistory {
@@ -417,6 +419,7 @@ impl WarmHistory {
         WarmHistory {
             poisson: (dt_prev > 0.0 && !phi.is_empty()).then_some((dt_prev, !phi_prev.is_empty())),
             viscous_c: projection.viscous.warm_change().1,
+            viscous_rule: projection.viscous_rule(),
         }
     }
 }
@@ -434,6 +437,10 @@ impl<C: Comm> HaloSync for Sync<C> {
         let (own, halo) = (self.n_own * width, self.halo.n_halo() * width);
         let got = self.halo.exchange(&self.comm, &values[..own], width);
         values[own..own + halo].copy_from_slice(&got);
+    }
+
+    fn own(&self) -> Option<usize> {
+        Some(self.n_own)
     }
 }
 
@@ -677,8 +684,9 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         // sums: energy, ‖u − u*‖², ‖u*‖², failed ranks, ‖D f‖², ‖D u‖², disconnected, pushes,
         // the Poisson system's unknowns and entries, the volume shift's Σe² and count
         let mut sums = [0.0; 12];
-        // maxima: −(smallest squared spacing), largest shift, Δt over its bound
-        let mut extremes = [f64::NEG_INFINITY; 3];
+        // maxima: −(smallest squared spacing), largest shift, Δt over its bound, the
+        // divergence's gain bound over the own rows (the adaptive viscous tolerance's `G`)
+        let mut extremes = [f64::NEG_INFINITY; 4];
         let mut fastest = (0usize, -1.0f64);
         if let Some(report) = report.as_deref() {
             let nl = &self.sim.nl;
@@ -709,6 +717,7 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
                 }
             }
             extremes[2] = report.dt_ratio;
+            extremes[3] = self.sim.projection.viscous_rule().gain;
             if report.volume_error.is_some() {
                 let (sq, count) = self.sim.projection.volume_error_sums(p, self.n_own);
                 (sums[10], sums[11]) = (sq, count as f64);
@@ -765,6 +774,15 @@ impl<C: Comm + Clone + 'static, const D: usize, B: Boundary<D> + Clone> Decompos
         global.solve.nnz = s[9] as usize;
         global.div_before = s[4].sqrt() / rho * dt;
         global.div_after = s[5].sqrt();
+        // the next viscous solve's tolerance, alike on every rank
+        let rule = self.sim.projection.viscous_rule_mut();
+        rule.gain = e[3];
+        rule.update(
+            self.ctx.params.projection.solve.viscous_adaptive,
+            global.solve.initial_rel_residual,
+            global.div_before,
+            s[2].sqrt(),
+        );
         global.min_spacing = (-e[0]).sqrt();
         let allowed = self.ctx.params.projection.allowed_floating;
         let c = g.connectivity;

@@ -111,9 +111,10 @@ pub struct SolveParams {
     /// particles, the pure Lagrangian frame: `ρ ≈ 10⁻⁷`) the tolerance stays at
     /// `viscous_rel_tol`; where the particles are shifted every step (`ρ ≈ 5·10⁻²` at 2D 10⁵)
     /// it rises to `rel_tol`. Only with a source other than the adjoint one (which has no bound
-    /// `G`), a Poisson solve by CG or AMG-CG, a viscous solve by CG and in a single process
-    /// (a decomposed run keeps `viscous_rel_tol`: every rank must stop its global CG at the
-    /// same tolerance).
+    /// `G`), a Poisson solve by CG or AMG-CG and a viscous solve by CG. In a decomposed run
+    /// every rank takes the candidate from the global values (`G` the largest of the ranks'
+    /// bounds over their own rows, the norms summed over them, `ρ` the distributed solve's),
+    /// so that the ranks stop their global viscous CG at the same tolerance.
     pub viscous_adaptive: bool,
     /// CG: iteration limit (default 10 000).
     pub max_iters: usize,

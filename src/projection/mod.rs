@@ -532,6 +532,13 @@ pub trait HaloSync: Send + Sync + std::fmt::Debug {
     fn scalar(&mut self, values: &mut [f64]) {
         self.sync(values, 1);
     }
+
+    /// The particles this rank owns, when they are the first ones (the rest its copies):
+    /// bounds over the rows, such as the adaptive viscous tolerance's divergence gain, are then
+    /// taken over the own rows only, whose neighbourhoods are whole (`None`: over every row).
+    fn own(&self) -> Option<usize> {
+        None
+    }
 }
 
 /// The warm start of the Poisson solve: the increments of the last steps extrapolated in time
@@ -831,15 +838,44 @@ pub struct ProjectionStep<const D: usize> {
     band_phi: Vec<f64>,
     /// The moving walls' ghost partners of [`VectorKind::RestWallsLinear`].
     linear_ghosts: stages::LinearGhosts,
-    /// The next viscous solve's tolerance before its clamp ([`SolveParams::viscous_adaptive`];
-    /// 0: the rule does not apply) and the divergence's gain bound it was computed with
-    /// ([`stages::divergence_gain_into`]; 0: not measured yet). The bound is measured again in
-    /// the source's pass whenever the last candidate lay above a tenth of the tight tolerance,
-    /// and kept otherwise: below that it cannot matter. `rho_last`: the last Poisson solve's
-    /// `initial_rel_residual`.
-    viscous_loosen: f64,
-    div_gain: f64,
-    rho_last: f64,
+    /// The adaptive viscous tolerance's state ([`SolveParams::viscous_adaptive`]).
+    viscous_rule: ViscousRule,
+}
+
+/// The adaptive viscous tolerance's state ([`SolveParams::viscous_adaptive`]), kept between
+/// steps (and handed on when a decomposed run builds a rank's projection anew).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct ViscousRule {
+    /// The next viscous solve's tolerance before its clamp (0: the rule does not apply).
+    pub loosen: f64,
+    /// The divergence's gain bound the candidate was computed with
+    /// ([`stages::divergence_gain_into`]; 0: not measured yet). It is measured again in the
+    /// source's pass whenever the last candidate lay above a tenth of the tight tolerance, and
+    /// kept otherwise: below that it cannot matter. A rank of a decomposed run measures it over
+    /// its own rows and takes the largest of the ranks'.
+    pub gain: f64,
+    /// The last Poisson solve's `initial_rel_residual`.
+    pub rho_last: f64,
+}
+
+impl ViscousRule {
+    /// The next viscous solve's candidate `θ ρ ‖∇̂h·u*‖ / (G ‖u*‖)` (`rho0` the Poisson
+    /// solve's warm-start residual, `du` and `u` the norms over the fluid, `G` the kept gain
+    /// bound, `θ = 0.1`), with `ρ` carried one step on while it falls (a warm start still
+    /// settling: the viscous error stays in the history its next guesses extrapolate). 0 (the
+    /// tight tolerance) without the rule or without one of its inputs.
+    pub fn update(&mut self, adaptive: bool, rho0: f64, du: f64, u: f64) {
+        let rho_next = match self.rho_last {
+            last if last > 0.0 => rho0 * (rho0 / last).min(1.0),
+            _ => rho0,
+        };
+        self.rho_last = rho0;
+        self.loosen = if adaptive && rho0 > 0.0 && du > 0.0 && u > 0.0 && self.gain > 0.0 {
+            0.1 * rho_next * du / (self.gain * u)
+        } else {
+            0.0
+        };
+    }
 }
 
 impl<const D: usize> ProjectionStep<D> {
@@ -865,20 +901,34 @@ impl<const D: usize> ProjectionStep<D> {
         (&self.source_divergence, &self.rhs, &self.disconnected)
     }
 
+    /// The adaptive viscous tolerance's state.
+    pub(crate) fn viscous_rule(&self) -> ViscousRule {
+        self.viscous_rule
+    }
+
+    /// The adaptive viscous tolerance's state, for a decomposed run to set from the ranks'
+    /// global values (so that every rank's distributed viscous CG stops at the same
+    /// tolerance, the one a single process would take) and to hand on.
+    pub(crate) fn viscous_rule_mut(&mut self) -> &mut ViscousRule {
+        &mut self.viscous_rule
+    }
+
     /// The solve parameters of the implicit viscous solve: `params` with `viscous_rel_tol`
     /// loosened to the last projection's candidate within `[min(rel_tol, viscous_rel_tol),
     /// rel_tol]` ([`SolveParams::viscous_adaptive`]).
     fn viscous_params(&self, params: &SolveParams) -> SolveParams {
         let mut v = *params;
-        if params.viscous_adaptive && self.viscous_loosen > 0.0 {
+        if params.viscous_adaptive && self.viscous_rule.loosen > 0.0 {
             v.viscous_rel_tol = self
-                .viscous_loosen
+                .viscous_rule
+                .loosen
                 .clamp(params.viscous_tol(), params.rel_tol);
         }
         v
     }
 
-    /// The last implicit viscous solve (default when none ran).
+    /// The last implicit viscous solve (default when none ran; a step's own is its report's
+    /// [`StepReport::viscous`], `None` when that step ran none).
     pub fn viscous_info(&self) -> SolveInfo {
         self.viscous_info
     }
@@ -1769,10 +1819,11 @@ impl<const D: usize> ProjectionStep<D> {
             f,
         );
         // the adaptive viscous tolerance's divergence gain, measured in the source's pass while
-        // the last step's candidate could matter (see `viscous_loosen`)
-        let adaptive = params.solve.viscous_adaptive && self.halo.is_none();
+        // the last step's candidate could matter (see `ViscousRule::gain`)
+        let adaptive = params.solve.viscous_adaptive;
         let measure = adaptive
-            && (self.div_gain == 0.0 || self.viscous_loosen > 0.1 * params.solve.viscous_tol());
+            && (self.viscous_rule.gain == 0.0
+                || self.viscous_rule.loosen > 0.1 * params.solve.viscous_tol());
         let gain = stages::divergence_gain_into(
             nl,
             vol,
@@ -1785,10 +1836,10 @@ impl<const D: usize> ProjectionStep<D> {
             f,
             &mut self.work_vec,
             &mut self.rhs,
-            measure,
+            measure.then(|| self.halo.as_ref().and_then(|h| h.own()).unwrap_or(n)),
         );
         if measure {
-            self.div_gain = gain;
+            self.viscous_rule.gain = gain;
         }
         if let Some(s) = &self.singular {
             // the regular part's source: the divergence of −(ρ/Δt) u_s subtracted
@@ -1832,25 +1883,15 @@ impl<const D: usize> ProjectionStep<D> {
             stages::set_band_values(role, &self.band_phi, &mut self.phi);
         }
         self.warm.judge(&self.phi, role);
-        // θ ρ ‖∇̂h·u*‖ / (G ‖u*‖), `SolveParams::viscous_adaptive`, with ρ carried one step on
-        // while it falls (a warm start still settling: the viscous error stays in the history
-        // its next guesses extrapolate)
-        let (rho0, du, u) = (
-            report.solve.initial_rel_residual,
-            report.div_before,
-            f_l2 * dt / rho,
-        );
-        let rho_next = match self.rho_last {
-            last if last > 0.0 => rho0 * (rho0 / last).min(1.0),
-            _ => rho0,
-        };
-        self.rho_last = rho0;
-        self.viscous_loosen =
-            if adaptive && rho0 > 0.0 && du > 0.0 && u > 0.0 && self.div_gain > 0.0 {
-                0.1 * rho_next * du / (self.div_gain * u)
-            } else {
-                0.0
-            };
+        // a rank of a decomposed run takes the candidate from the global sums instead
+        if self.halo.is_none() {
+            self.viscous_rule.update(
+                adaptive,
+                report.solve.initial_rel_residual,
+                report.div_before,
+                f_l2 * dt / rho,
+            );
+        }
         report.timings.solve = t.elapsed().as_secs_f64();
 
         // 5. correction and pressure update, into scratch (u and p untouched until it is checked)

@@ -189,7 +189,7 @@ pub fn divergence_into<const D: usize>(
     out: &mut Vec<f64>,
 ) {
     divergence_gain_into(
-        nl, vol, x, role, boundary, ghost_rule, kind, ops, v, work, out, false,
+        nl, vol, x, role, boundary, ghost_rule, kind, ops, v, work, out, None,
     );
 }
 
@@ -203,7 +203,9 @@ pub fn divergence_into<const D: usize>(
 /// with the divergence's gain on `u*` to know how much of a viscous solve's error reaches the
 /// Poisson source ([`crate::poisson::SolveParams::viscous_adaptive`]). `G` is 0 for
 /// [`SourceKind::AdjointBt`] (no bound is taken), when there is no fluid particle and without
-/// `measure` (the divergence alone, [`divergence_into`]).
+/// `measure` (the divergence alone, [`divergence_into`]). `measure = Some(k)` takes the bound
+/// over the fluid among the first `k` particles (`nl.len()` for all; a rank of a decomposed
+/// run its own, whose neighbourhoods are whole, and not its halo's copies).
 #[allow(clippy::too_many_arguments)]
 pub fn divergence_gain_into<const D: usize>(
     nl: &NeighborList<D>,
@@ -217,10 +219,12 @@ pub fn divergence_gain_into<const D: usize>(
     v: &[[f64; D]],
     work: &mut Vec<[f64; D]>,
     out: &mut Vec<f64>,
-    measure: bool,
+    measure: Option<usize>,
 ) -> f64 {
     let (n, d) = (nl.len(), D as f64);
-    let fluid = |i: usize| role[i].is_fluid();
+    let counted = measure.unwrap_or(0).min(n);
+    let measure = measure.is_some();
+    let fluid = |i: usize| i < counted && role[i].is_fluid();
     out.resize(n, 0.0);
     let renorm = &mut ops.renorm;
     let row_sum = match kind {
@@ -261,7 +265,7 @@ pub fn divergence_gain_into<const D: usize>(
     if row_sum == 0.0 {
         return 0.0;
     }
-    let (lo, hi) = (0..n)
+    let (lo, hi) = (0..counted)
         .into_par_iter()
         .with_min_len(4096)
         .filter(|&i| fluid(i))
