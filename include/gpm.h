@@ -158,6 +158,13 @@ typedef struct GpmReport {
   double solve_rel_residual;
   // Wall-clock seconds of the projection (diagnostics, source, solve, correction).
   double seconds;
+  // Unknowns of the implicit viscous solve of `gpm_system_step`'s predictor (0 when none
+  // ran: `gpm_system_project`, explicit or no viscosity; then the next two are 0 too).
+  size_t viscous_unknowns;
+  // Iterations of the implicit viscous solve, its components summed (0 for Cholesky).
+  size_t viscous_iters;
+  // Relative residual of the implicit viscous solve (the largest over its components).
+  double viscous_rel_residual;
 } GpmReport;
 
 #ifdef __cplusplus

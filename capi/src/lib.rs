@@ -180,6 +180,13 @@ pub struct GpmReport {
     pub solve_rel_residual: f64,
     /// Wall-clock seconds of the projection (diagnostics, source, solve, correction).
     pub seconds: f64,
+    /// Unknowns of the implicit viscous solve of `gpm_system_step`'s predictor (0 when none
+    /// ran: `gpm_system_project`, explicit or no viscosity; then the next two are 0 too).
+    pub viscous_unknowns: usize,
+    /// Iterations of the implicit viscous solve, its components summed (0 for Cholesky).
+    pub viscous_iters: usize,
+    /// Relative residual of the implicit viscous solve (the largest over its components).
+    pub viscous_rel_residual: f64,
 }
 
 impl From<&StepReport> for GpmReport {
@@ -201,6 +208,9 @@ impl From<&StepReport> for GpmReport {
             solve_iters: r.solve.iters,
             solve_rel_residual: r.solve.rel_residual,
             seconds: t.diagnostics + t.predictor + t.source + t.solve + t.correction,
+            viscous_unknowns: r.viscous.map_or(0, |v| v.unknowns),
+            viscous_iters: r.viscous.map_or(0, |v| v.iters),
+            viscous_rel_residual: r.viscous.map_or(0.0, |v| v.rel_residual),
         }
     }
 }
@@ -1227,6 +1237,46 @@ mod tests {
             GpmStatus::NullPointer
         );
         unsafe { gpm_system_free(std::ptr::null_mut()) };
+    }
+
+    #[test]
+    fn the_report_carries_the_viscous_solve_of_a_step() {
+        let n = 12;
+        let x = lattice(n);
+        // a shear wave: the implicit viscous solve has something to do
+        let u: Vec<f64> = x
+            .chunks_exact(2)
+            .flat_map(|p| [(2.0 * std::f64::consts::PI * p[1]).sin(), 0.0])
+            .collect();
+        let mut s = settings();
+        s.h = 3.0 / n as f64;
+        s.boundary = GpmBoundaryKind::Periodic as u32;
+        s.nu = 0.01;
+        assert_eq!(s.viscous_theta, 0.5, "implicit by default");
+        let mut sys = std::ptr::null_mut();
+        let st = unsafe {
+            gpm_system_new(
+                &s,
+                n * n,
+                x.as_ptr(),
+                u.as_ptr(),
+                std::ptr::null(),
+                std::ptr::null(),
+                &mut sys,
+            )
+        };
+        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        let mut r = GpmReport::default();
+        let st = unsafe { gpm_system_step(sys, 0.01, std::ptr::null(), n * n, &mut r) };
+        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        assert_eq!(r.viscous_unknowns, n * n);
+        assert!(r.viscous_rel_residual < 1e-10, "{}", r.viscous_rel_residual);
+        // a projection alone runs no viscous solve
+        let mut q = GpmReport::default();
+        let st = unsafe { gpm_system_project(sys, 0.01, u.as_ptr(), n * n, &mut q) };
+        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        assert_eq!((q.viscous_unknowns, q.viscous_iters), (0, 0));
+        unsafe { gpm_system_free(sys) };
     }
 
     #[test]

@@ -110,6 +110,11 @@ class StepReport:
     def solve(self) -> Dict[str, Any]:
         """The Poisson solve: solver, unknowns, iterations, residuals, reuse, timings."""
     @property
+    def viscous(self) -> Optional[Dict[str, Any]]:
+        """The implicit viscous solve of :meth:`System.step`'s predictor, with the keys of
+        :attr:`solve` (``None`` when none ran: :meth:`System.project`, explicit or no
+        viscosity)."""
+    @property
     def timings(self) -> Dict[str, float]:
         """Seconds per stage (diagnostics, predictor, source, solve, correction)."""
     def to_dict(self) -> Dict[str, Any]:

@@ -1097,6 +1097,13 @@ impl PyStepReport {
         json_to_py(py, &to_json_value(&self.report.solve))
     }
     #[getter]
+    fn viscous(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
+        match &self.report.viscous {
+            Some(v) => json_to_py(py, &to_json_value(v)),
+            None => Ok(py.None()),
+        }
+    }
+    #[getter]
     fn timings(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
         json_to_py(py, &to_json_value(&self.report.timings))
     }
