@@ -1182,6 +1182,32 @@ mod tests {
             .collect()
     }
 
+    /// The defaults on the periodic unit square with `h = 3 Δx` for an `n × n` lattice.
+    fn periodic_settings(n: usize) -> GpmSettings {
+        let mut s = settings();
+        s.h = 3.0 / n as f64;
+        s.boundary = GpmBoundaryKind::Periodic as u32;
+        s
+    }
+
+    /// A system of the 2D particles at `x` with velocities `u` (no pressures or volumes given).
+    fn new_system(s: &GpmSettings, x: &[f64], u: &[f64]) -> *mut GpmSystem {
+        let mut sys = std::ptr::null_mut();
+        let st = unsafe {
+            gpm_system_new(
+                s,
+                x.len() / 2,
+                x.as_ptr(),
+                u.as_ptr(),
+                std::ptr::null(),
+                std::ptr::null(),
+                &mut sys,
+            )
+        };
+        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        sys
+    }
+
     fn message() -> String {
         unsafe { CStr::from_ptr(gpm_last_error_message()) }
             .to_string_lossy()
@@ -1248,24 +1274,10 @@ mod tests {
             .chunks_exact(2)
             .flat_map(|p| [(2.0 * std::f64::consts::PI * p[1]).sin(), 0.0])
             .collect();
-        let mut s = settings();
-        s.h = 3.0 / n as f64;
-        s.boundary = GpmBoundaryKind::Periodic as u32;
+        let mut s = periodic_settings(n);
         s.nu = 0.01;
         assert_eq!(s.viscous_theta, 0.5, "implicit by default");
-        let mut sys = std::ptr::null_mut();
-        let st = unsafe {
-            gpm_system_new(
-                &s,
-                n * n,
-                x.as_ptr(),
-                u.as_ptr(),
-                std::ptr::null(),
-                std::ptr::null(),
-                &mut sys,
-            )
-        };
-        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        let sys = new_system(&s, &x, &u);
         let mut r = GpmReport::default();
         let st = unsafe { gpm_system_step(sys, 0.01, std::ptr::null(), n * n, &mut r) };
         assert_eq!(st, GpmStatus::Ok, "{}", message());
@@ -1284,22 +1296,8 @@ mod tests {
         let n = 12;
         let x = lattice(n);
         let mut u = vec![0.0; x.len()];
-        let mut s = settings();
-        s.h = 3.0 / n as f64;
-        s.boundary = GpmBoundaryKind::Periodic as u32;
-        let mut sys = std::ptr::null_mut();
-        let st = unsafe {
-            gpm_system_new(
-                &s,
-                n * n,
-                x.as_ptr(),
-                u.as_ptr(),
-                std::ptr::null(),
-                std::ptr::null(),
-                &mut sys,
-            )
-        };
-        assert_eq!(st, GpmStatus::Ok, "{}", message());
+        let mut s = periodic_settings(n);
+        let sys = new_system(&s, &x, &u);
         // dt
         let st =
             unsafe { gpm_system_step(sys, -1.0, std::ptr::null(), n * n, std::ptr::null_mut()) };
