@@ -908,7 +908,10 @@ impl<const D: usize> ProjectionStep<D> {
 
     /// The adaptive viscous tolerance's state, for a decomposed run to set from the ranks'
     /// global values (so that every rank's distributed viscous CG stops at the same
-    /// tolerance, the one a single process would take) and to hand on.
+    /// tolerance) and to hand on. That tolerance is a single process's up to the gain bound,
+    /// which each rank takes with its own rows' volume spread: the largest of the ranks'
+    /// bounds can lie below the bound over all rows when the extreme volumes and the largest
+    /// row sum sit on different ranks.
     pub(crate) fn viscous_rule_mut(&mut self) -> &mut ViscousRule {
         &mut self.viscous_rule
     }
