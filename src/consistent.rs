@@ -1287,6 +1287,61 @@ impl<const D: usize> LsOperators<D> {
             });
     }
 
+    /// The gradients of the entries of a velocity gradient `gu` and a pressure gradient `gp` in
+    /// one pass over the pairs: `hess_i[a][c] = ∇ˡˢ(gu[a][c])` and `hp_i[c] = ∇ˡˢ(gp[c])` (rows
+    /// `0..hess.len()`, at most [`Self::rows`]), bit for bit [`Self::grad_into`] of each entry
+    /// alone — the second derivatives of the shift's Taylor correction, which took `D (D + 1)`
+    /// passes (and as many copies of a field) that way.
+    pub fn grad_of_gradients_into(
+        &self,
+        nl: &NeighborList<D>,
+        gu: &[[[f64; D]; D]],
+        gp: &[[f64; D]],
+        hess: &mut [[[[f64; D]; D]; D]],
+        hp: &mut [[[f64; D]; D]],
+    ) {
+        self.check(hess.len());
+        hess.par_iter_mut()
+            .zip(hp.par_iter_mut())
+            .with_min_len(MIN_ROWS)
+            .enumerate()
+            .for_each(|(i, (oh, op))| {
+                let mut h = [[[0.0; D]; D]; D];
+                let mut q = [[0.0; D]; D];
+                for k in nl.row(i) {
+                    let j = nl.indices()[k] as usize;
+                    // the pair's values as `Self::scalar` takes them (a ghost of the wall
+                    // variant: the mean of the ghost's and its partner's)
+                    let (vu, vp) = match self.partner.get(k) {
+                        Some(&s) if s as usize != j => {
+                            let s = s as usize;
+                            let vu: [[f64; D]; D] = std::array::from_fn(|a| {
+                                std::array::from_fn(|c| 0.5 * (gu[j][a][c] + gu[s][a][c]))
+                            });
+                            let vp: [f64; D] = std::array::from_fn(|c| 0.5 * (gp[j][c] + gp[s][c]));
+                            (vu, vp)
+                        }
+                        _ => (gu[j], gp[j]),
+                    };
+                    let coef = &self.coef[k * Self::S..k * Self::S + D];
+                    for c in 0..D {
+                        for a in 0..D {
+                            let df = vu[a][c] - gu[i][a][c];
+                            for b in 0..D {
+                                h[a][c][b] += coef[b] * df;
+                            }
+                        }
+                        let dg = vp[c] - gp[i][c];
+                        for b in 0..D {
+                            q[c][b] += coef[b] * dg;
+                        }
+                    }
+                }
+                *oh = h;
+                *op = q;
+            });
+    }
+
     /// The gradient of each component of `u`, `out_i[a][b] = (∇ˡˢu_a)_b` (rows `0..out.len()`,
     /// at most [`Self::rows`]).
     pub fn grad_vec_into(&self, nl: &NeighborList<D>, u: &[[f64; D]], out: &mut [[[f64; D]; D]]) {

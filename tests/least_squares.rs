@@ -345,3 +345,70 @@ fn wall_variant_keeps_the_mirror_symmetry_of_a_lattice() {
         );
     }
 }
+
+/// The shift's second derivatives in one pass (`grad_of_gradients_into`) are, bit for bit, the
+/// gradient of each entry taken alone (`grad_into`), in both variants (the wall variant reads
+/// a ghost's value as the mean of its own and its partner's).
+#[test]
+fn gradients_of_gradients_in_one_pass_are_each_entry_alone() {
+    let (p, _walls, nl) = channel(20, 0.3);
+    let n = p.len();
+    let gu: Vec<[[f64; 2]; 2]> =
+        p.x.iter()
+            .map(|x| {
+                [
+                    [(3.0 * x[0]).sin() * x[1], x[0] * x[0] - x[1]],
+                    [(2.0 * x[1]).cos() + x[0], x[0] * x[1] * x[1]],
+                ]
+            })
+            .collect();
+    let gp: Vec<[f64; 2]> =
+        p.x.iter()
+            .map(|x| [(x[0] + 2.0 * x[1]).exp(), x[1].powi(3)])
+            .collect();
+    for walls in [false, true] {
+        let mut ls = if walls {
+            LsOperators::at_walls()
+        } else {
+            LsOperators::new()
+        };
+        ls.update(
+            &nl,
+            &p.vol,
+            nl.len(),
+            walls.then_some((&p.x[..], &p.role[..])),
+        );
+        let mut hess = vec![[[[0.0; 2]; 2]; 2]; n];
+        let mut hp = vec![[[0.0; 2]; 2]; n];
+        ls.grad_of_gradients_into(&nl, &gu, &gp, &mut hess, &mut hp);
+        let mut g = vec![[0.0; 2]; n];
+        for e in 0..6 {
+            let f: Vec<f64> = (0..n)
+                .map(|i| {
+                    if e < 4 {
+                        gu[i][e / 2][e % 2]
+                    } else {
+                        gp[i][e - 4]
+                    }
+                })
+                .collect();
+            ls.grad_into(&nl, &f, &mut g);
+            for i in 0..n {
+                let one = if e < 4 {
+                    hess[i][e / 2][e % 2]
+                } else {
+                    hp[i][e - 4]
+                };
+                for b in 0..2 {
+                    assert_eq!(
+                        one[b].to_bits(),
+                        g[i][b].to_bits(),
+                        "walls {walls}, entry {e}, row {i}, ∂_{b}: {} against {}",
+                        one[b],
+                        g[i][b]
+                    );
+                }
+            }
+        }
+    }
+}

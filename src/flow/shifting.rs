@@ -167,8 +167,6 @@ pub(crate) struct ShiftScratch<const D: usize> {
     hess: Vec<[[[f64; D]; D]; D]>,
     /// `hp[i][c][b] = ∂_b ∂_c p`.
     hp: Vec<[[f64; D]; D]>,
-    field: Vec<f64>,
-    field_grad: Vec<[f64; D]>,
     /// Rows with a ghost neighbour (no second-order term there).
     near_wall: Vec<bool>,
     /// Per particle and component: the smallest and largest velocity among the particle and
@@ -482,8 +480,9 @@ fn velocity_range<const D: usize>(
 
 /// The second derivatives of the velocity and the pressure for the Taylor correction: the
 /// least-squares gradients (plain variant `lp`) of the first derivatives in `s.grad` and
-/// `s.gp`, and the rows that see a ghost (whose derivatives' ghost values are undefined: they
-/// keep the first-order correction).
+/// `s.gp`, in one pass ([`crate::consistent::LsOperators::grad_of_gradients_into`]), and the
+/// rows that see a ghost (whose derivatives' ghost values are undefined: they keep the
+/// first-order correction).
 fn second_derivatives<const D: usize>(
     nl: &NeighborList<D>,
     lp: &crate::consistent::LsOperators<D>,
@@ -491,34 +490,19 @@ fn second_derivatives<const D: usize>(
     s: &mut ShiftScratch<D>,
 ) {
     let n = p.len();
-    s.hess.clear();
     s.hess.resize(n, [[[0.0; D]; D]; D]);
-    s.hp.clear();
     s.hp.resize(n, [[0.0; D]; D]);
-    s.field.resize(n, 0.0);
-    s.field_grad.resize(n, [0.0; D]);
-    for a in 0..=D {
-        for c in 0..D {
-            for (f, i) in s.field.iter_mut().zip(0..n) {
-                *f = if a < D { s.grad[i][a][c] } else { s.gp[i][c] };
-            }
-            lp.grad_into(nl, &s.field, &mut s.field_grad);
-            for i in 0..n {
-                if a < D {
-                    s.hess[i][a][c] = s.field_grad[i];
-                } else {
-                    s.hp[i][c] = s.field_grad[i];
-                }
-            }
-        }
-    }
-    s.near_wall.clear();
-    s.near_wall.extend((0..n).map(|i| {
-        nl.row(i).any(|k| {
-            matches!(
-                p.role[nl.indices()[k] as usize],
-                crate::particles::Role::Ghost { .. }
-            )
+    lp.grad_of_gradients_into(nl, &s.grad, &s.gp, &mut s.hess, &mut s.hp);
+    (0..n)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| {
+            nl.row(i).any(|k| {
+                matches!(
+                    p.role[nl.indices()[k] as usize],
+                    crate::particles::Role::Ghost { .. }
+                )
+            })
         })
-    }));
+        .collect_into_vec(&mut s.near_wall);
 }
