@@ -114,7 +114,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 11] = [
+const SWITCHES: [(&str, bool, &str); 12] = [
     (
         "skin",
         true,
@@ -170,7 +170,15 @@ const SWITCHES: [(&str, bool, &str); 11] = [
         true,
         "viscous tolerance loosened up to rel_tol where the pressure's warm start is poor",
     ),
+    (
+        "warm_tol",
+        false,
+        "Poisson CG stops at 10⁻³ of its warm start's residual (solve.warm_tol; off: rel_tol alone)",
+    ),
 ];
+
+/// The warm-start factor the switch study sets ([`SolveParams::warm_tol`]).
+const WARM_TOL: f64 = 1e-3;
 
 impl Case {
     /// The columns that name the case in the CSV files: `d,n_particles,frame,solver,reuse,threads`.
@@ -263,6 +271,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("pattern_reuse") => projection.solve.pattern_within_h = false,
         Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
         Some("viscous_adaptive") => projection.solve.viscous_adaptive = false,
+        Some("warm_tol") => projection.solve.warm_tol = WARM_TOL,
         Some("keep_pressure_gradient" | "amg_single_precision") => {}
         Some(other) => bail!("unknown switch {other:?}"),
     }

@@ -205,6 +205,9 @@ fn solve_params_name_each_bad_value() {
     );
     assert_param(s(&|p| p.max_iters = 0), "solve.max_iters", 0.0);
     assert_param(s(&|p| p.amg_lag_factor = 0.0), "solve.amg_lag_factor", 0.0);
+    assert_param(s(&|p| p.warm_tol = 1.0), "solve.warm_tol", 1.0);
+    assert_param(s(&|p| p.warm_tol = -1e-3), "solve.warm_tol", -1e-3);
+    assert_param(s(&|p| p.warm_tol = f64::NAN), "solve.warm_tol", f64::NAN);
     // the message names the key and the value
     let e = s(&|p| p.abs_tol = -3.0).unwrap_err();
     let msg = e.to_string();

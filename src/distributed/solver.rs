@@ -23,7 +23,7 @@ use super::halo::LocalRows;
 use super::partition::rcb;
 use crate::error::SolveError;
 use crate::poisson::amg::{Amg, AmgParams, CsrRef};
-use crate::poisson::iterative::CgInfo;
+use crate::poisson::iterative::{stop_tol, CgInfo};
 use crate::poisson::{ExternalSolve, ExternalSystem};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -714,8 +714,8 @@ impl<C: Comm> ExternalSolve for DistributedPoisson<C> {
             }
             return Ok(CgInfo::default());
         }
-        let tol = params.abs_tol.max(params.rel_tol * bnorm);
         let r0 = rnorm;
+        let tol = stop_tol(params.abs_tol, params.rel_tol, params.warm_tol, bnorm, r0);
         let mut z = vec![0.0; m];
         let mut p = vec![0.0; m + nh];
         let mut q = vec![0.0; m];

@@ -296,12 +296,14 @@ impl HelmholtzSolver {
         // by the mass term W, so Jacobi converges in a few iterations, while a factor recomputed
         // every step (moving particles) costs far more (examples/bench). AMG-CG on request.
         // tighter than the pressure's (see `SolveParams::viscous_rel_tol`), also for an
-        // external solver, which stops at its system's `rel_tol`
+        // external solver, which stops at its system's `rel_tol` (and not at the pressure's
+        // warm-start factor: the viscous tolerance has its own rule)
         let viscous_tol = params.viscous_tol();
         if let Some(ext) = self.external.as_mut() {
             let t = Instant::now();
             let params = &SolveParams {
                 rel_tol: viscous_tol,
+                warm_tol: 0.0,
                 ..*params
             };
             self.b.resize(m * D, 0.0);

@@ -116,6 +116,22 @@ pub struct SolveParams {
     /// bounds over their own rows, the norms summed over them, `ρ` the distributed solve's),
     /// so that the ranks stop their global viscous CG at the same tolerance.
     pub viscous_adaptive: bool,
+    /// CG, the Poisson solve: a solve started from a warm start that predicted at least 90 % of
+    /// the right side (`ρ = ‖b − K φ₀‖₂/‖b‖₂ ≤ 0.1`) also stops once it has cut that residual
+    /// by `warm_tol`, at `‖r‖₂ ≤ max(rel_tol, warm_tol ρ) ‖b‖₂` ([`iterative::stop_tol`];
+    /// default 0: off, `rel_tol` alone). On shifted particles the next step's move puts
+    /// configuration noise of `ρ ≈ 1–8·10⁻²` of the source back into the problem; solving each
+    /// step to `rel_tol = 10⁻¹⁰` of a source that is a few per cent new noise at the next step
+    /// is the moving step's largest cost. Measured (README, *Performance*): the Lagrangian
+    /// Taylor–Green vortex n = 100 to t = 2 and the shifted 2D 10⁵ bench step with
+    /// `warm_tol = 10⁻³`. The divergence left after the projection rises with the tolerance
+    /// (`div_after`); a poor warm start (the Lagrangian cavity's: `ρ` 0.18–8), a cold start
+    /// and fixed particles once settled (`ρ ≈ 10⁻⁷`: `warm_tol ρ` below `rel_tol`) are left
+    /// alone. A direct solve ignores it (a one-process run that factorises and a decomposed
+    /// one that iterates then differ by the looser tolerance). The reported
+    /// [`SolveInfo::rel_tol`] is the tolerance the solve stopped at; the viscous solve's
+    /// adaptive tolerance ([`Self::viscous_adaptive`]) is capped by it instead of `rel_tol`.
+    pub warm_tol: f64,
     /// CG: iteration limit (default 10 000).
     pub max_iters: usize,
     /// CG: start from the previous solution held in `phi` (default true).
@@ -182,7 +198,8 @@ impl SolveParams {
         self.rel_tol.min(self.viscous_rel_tol)
     }
 
-    /// Checks the tolerances `rel_tol`, `abs_tol` and `viscous_rel_tol` (non-negative and finite), `max_iters`
+    /// Checks the tolerances `rel_tol`, `abs_tol` and `viscous_rel_tol` (non-negative and
+    /// finite), `warm_tol` (in `[0, 1)`), `max_iters`
     /// (at least 1) and `amg_lag_factor` (positive and finite), naming the first bad one by its
     /// key under `solve` (`solve.abs_tol`) and its value.
     pub fn validate(&self) -> Result<(), InputError> {
@@ -198,6 +215,13 @@ impl SolveParams {
                     "a tolerance must be non-negative and finite",
                 ));
             }
+        }
+        if !(0.0..1.0).contains(&self.warm_tol) {
+            return Err(InputError::parameter(
+                "solve.warm_tol",
+                self.warm_tol,
+                "the warm-start factor must lie in [0, 1) (0: off)",
+            ));
         }
         if self.max_iters == 0 {
             return Err(InputError::parameter(
@@ -250,6 +274,7 @@ impl Default for SolveParams {
             abs_tol: 0.0,
             viscous_rel_tol: 1e-12,
             viscous_adaptive: true,
+            warm_tol: 0.0,
             max_iters: 10_000,
             warm_start: true,
             reuse_symbolic: true,
@@ -287,8 +312,9 @@ pub struct SolveInfo {
     /// solve): how far the warm start was off.
     pub initial_rel_residual: f64,
     /// The relative tolerance the iterative solve stopped at, `‖r‖₂ ≤ rel_tol ‖b‖₂` (the
-    /// Poisson solve's [`SolveParams::rel_tol`]; the viscous solve's, adaptive or not,
-    /// [`SolveParams::viscous_tol`]); 0 for a direct solve.
+    /// Poisson solve's [`SolveParams::rel_tol`], or `warm_tol ρ` where [`SolveParams::warm_tol`]
+    /// loosened it; the viscous solve's, adaptive or not, [`SolveParams::viscous_tol`]); 0 for
+    /// a direct solve.
     pub rel_tol: f64,
     /// Floating components (each had its right side projected and its mean fixed).
     pub floating: usize,
@@ -320,13 +346,14 @@ pub struct SolveInfo {
 }
 
 impl SolveInfo {
-    /// Takes the counts of the CG run of a scalar solve and the tolerance it was asked for.
-    pub(crate) fn set_cg(&mut self, r: &iterative::CgInfo, rel_tol: f64) {
+    /// Takes the counts of the CG run of a scalar solve and the relative tolerance it stopped
+    /// at: `rel_tol`, or `warm_tol ρ` where that is larger ([`iterative::stop_tol`]).
+    pub(crate) fn set_cg(&mut self, r: &iterative::CgInfo, rel_tol: f64, warm_tol: f64) {
         self.iters = r.iters;
         self.abs_residual = r.abs_residual;
         self.rel_residual = r.rel_residual;
         self.initial_rel_residual = r.initial_rel_residual();
-        self.rel_tol = rel_tol;
+        self.rel_tol = iterative::stop_tol(0.0, rel_tol, warm_tol, 1.0, self.initial_rel_residual);
     }
 
     /// Adds one CG run over a component of a vector solve: iterations summed, residuals the
@@ -690,7 +717,7 @@ impl PoissonSolver {
                 periods: &nl.config().periodic.len,
             })?;
             info.solve_seconds = t.elapsed().as_secs_f64();
-            info.set_cg(&r, params.rel_tol);
+            info.set_cg(&r, params.rel_tol, params.warm_tol);
         } else {
             match kind {
                 SolverKind::Cholesky => {
@@ -723,6 +750,7 @@ impl PoissonSolver {
                     info.rel_residual = rel;
                 }
                 SolverKind::Cg | SolverKind::Amg | SolverKind::Auto => {
+                    self.cg.set_warm_tol(params.warm_tol);
                     for (u, &p) in a.particle.iter().enumerate() {
                         self.x[u] = if params.warm_start && phi[p as usize].is_finite() {
                             phi[p as usize]
@@ -780,7 +808,7 @@ impl PoissonSolver {
                         info.solve_seconds = t.elapsed().as_secs_f64();
                         r
                     };
-                    info.set_cg(&r, params.rel_tol);
+                    info.set_cg(&r, params.rel_tol, params.warm_tol);
                 }
             }
         }

@@ -918,14 +918,25 @@ impl<const D: usize> ProjectionStep<D> {
 
     /// The solve parameters of the implicit viscous solve: `params` with `viscous_rel_tol`
     /// loosened to the last projection's candidate within `[min(rel_tol, viscous_rel_tol),
-    /// rel_tol]` ([`SolveParams::viscous_adaptive`]).
+    /// rel_tol]` ([`SolveParams::viscous_adaptive`]) — the upper end the tolerance the last
+    /// Poisson solve stopped at, `max(rel_tol, warm_tol ρ)` with [`SolveParams::warm_tol`]:
+    /// never looser than the pressure's solve — and `rel_tol` raised to match (the tolerance
+    /// the viscous solve stops at is `min(rel_tol, viscous_rel_tol)`).
     fn viscous_params(&self, params: &SolveParams) -> SolveParams {
         let mut v = *params;
         if params.viscous_adaptive && self.viscous_rule.loosen > 0.0 {
+            let ceiling = crate::poisson::iterative::stop_tol(
+                0.0,
+                params.rel_tol,
+                params.warm_tol,
+                1.0,
+                self.viscous_rule.rho_last,
+            );
             v.viscous_rel_tol = self
                 .viscous_rule
                 .loosen
-                .clamp(params.viscous_tol(), params.rel_tol);
+                .clamp(params.viscous_tol(), ceiling);
+            v.rel_tol = ceiling;
         }
         v
     }
