@@ -185,11 +185,8 @@ fn config(a: &Args) -> CavityConfig {
         cfg.volumes = VolumeRule::Fixed;
     }
     // the Lagrangian cavity needs a smaller step than the default CFL factor (above a cell
-    // Reynolds number of 4, a smaller one still)
-    cfg.limits.cfl = a.cfl.unwrap_or(match a.motion {
-        Motion::Lagrangian => gpm::scene::cavity::lagrangian_cfl(a.re, a.n),
-        Motion::Eulerian => cfg.limits.cfl,
-    });
+    // Reynolds number of 4, a smaller one still: `scene::cavity::lagrangian_cfl`)
+    cfg.limits.cfl = a.cfl.unwrap_or(cfg.default_cfl());
     if let Some(t) = a.steady_tol {
         cfg.scene.steady.tol = t;
     }

@@ -257,6 +257,37 @@ fn configuration_arrays_duplicates_and_ranges_are_named() {
     let ok = scene_config_from_json::<cavity::Cavity>(r#"{"scene": "cavity", "config": {"n": 9}}"#)
         .unwrap();
     assert_eq!(ok.n, 9);
+    // a file without limits.cfl takes the step the scene needs in its frame: the Lagrangian
+    // cavity's 0.15 up to the cell Reynolds number Re/n = 4 and 0.1 above (the default 0.2
+    // drives a particle through a wall), everything else the default 0.2
+    let cfl = |text: &str| {
+        scene_config_from_json::<cavity::Cavity>(text)
+            .unwrap()
+            .limits
+            .cfl
+    };
+    assert_eq!(
+        cfl(r#"{"motion": "lagrangian", "n": 100, "re": 100}"#),
+        0.15
+    );
+    assert_eq!(
+        cfl(r#"{"motion": "lagrangian", "n": 100, "re": 1000}"#),
+        0.1
+    );
+    assert_eq!(
+        cfl(r#"{"config": {"motion": "lagrangian", "n": 50, "re": 200}}"#),
+        0.15
+    );
+    assert_eq!(
+        cfl(r#"{"motion": "lagrangian", "n": 100, "limits": {"cfl": 0.3}}"#),
+        0.3
+    );
+    assert_eq!(cfl(r#"{"n": 100, "re": 1000}"#), 0.2);
+    let tg = scene_config_from_json::<gpm::scene::taylor_green::TaylorGreen>(
+        r#"{"motion": "lagrangian", "n": 100}"#,
+    )
+    .unwrap();
+    assert_eq!(tg.limits.cfl, 0.2);
     // ranges: cfl, visc, force in (0, 1]; n at most MAX_N
     for (text, key) in [
         (r#"{"limits": {"cfl": 1e300}}"#, "limits.cfl"),

@@ -588,6 +588,67 @@ fn run_command_line() {
     );
 }
 
+/// `gpm run cavity` in the Lagrangian frame takes the scene's smaller step (0.15 up to the
+/// cell Reynolds number Re/n = 4, 0.1 above; the default 0.2 drives a particle through a wall
+/// at n = 100) unless `--cfl` or the configuration file gives one; the flags' frame, Reynolds
+/// number and resolution decide, after the file's.
+#[cfg(feature = "cli")]
+#[test]
+fn gpm_run_gives_the_lagrangian_cavity_its_step_unless_one_is_given() {
+    use std::process::Command;
+    let gpm = env!("CARGO_BIN_EXE_gpm");
+    let dir = tempfile::tempdir().unwrap();
+    let moving = dir.path().join("moving.json");
+    std::fs::write(&moving, r#"{"motion": "lagrangian", "n": 12}"#).unwrap();
+    let given = dir.path().join("given.json");
+    std::fs::write(&given, r#"{"limits": {"cfl": 0.18}}"#).unwrap();
+    let cases: [(&str, &[&str], Option<&Path>, f64); 7] = [
+        ("cavity", &["--motion", "lagrangian"], None, 0.1),
+        (
+            "cavity",
+            &["--motion", "lagrangian", "--re", "20"],
+            None,
+            0.15,
+        ),
+        (
+            "cavity",
+            &["--motion", "lagrangian", "--cfl", "0.2"],
+            None,
+            0.2,
+        ),
+        ("cavity", &["--motion", "lagrangian"], Some(&given), 0.18),
+        ("cavity", &["--re", "40"], Some(&moving), 0.15),
+        ("cavity", &["--motion", "eulerian"], Some(&moving), 0.2),
+        ("taylor-green", &["--motion", "lagrangian"], None, 0.2),
+    ];
+    for (k, (scene, flags, file, want)) in cases.into_iter().enumerate() {
+        let out_dir = dir.path().join(format!("run{k}"));
+        let mut cmd = Command::new(gpm);
+        cmd.args(["run", scene, "--quiet", "--n", "12", "--t-end", "0.01"])
+            .args(flags)
+            .arg("--out")
+            .arg(&out_dir);
+        if let Some(f) = file {
+            cmd.arg("--config").arg(f);
+        }
+        let out = cmd.output().unwrap();
+        assert!(
+            out.status.success(),
+            "{scene} {flags:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let config = Replay::open(out_dir.join("run.mcap"))
+            .unwrap()
+            .config
+            .unwrap();
+        assert_eq!(
+            config.config["config"]["limits"]["cfl"].as_f64(),
+            Some(want),
+            "{scene} {flags:?} {file:?}"
+        );
+    }
+}
+
 /// `steps` steps of `sim` recorded in full every `k` steps (its projection captured), and the
 /// re-run of the file.
 fn record_full_and_rerun(

@@ -199,8 +199,8 @@ struct RunArgs {
     /// Particle frame: lagrangian or eulerian.
     #[arg(long)]
     motion: Option<Motion>,
-    /// CFL number on h/U (the key `limits.cfl`; default 0.2; a Lagrangian cavity needs less,
-    /// e.g. 0.1 at Re 1000 — the cavity example's `lagrangian_cfl` rule).
+    /// CFL number on h/U (the key `limits.cfl`; default 0.2, except a Lagrangian cavity's:
+    /// 0.15 up to the cell Reynolds number Re/n = 4, 0.1 above — `scene::cavity::lagrangian_cfl`).
     #[arg(long)]
     cfl: Option<f64>,
     /// What to record: none, diagnostics (every step) or full (plus particles and projection
@@ -372,8 +372,9 @@ fn real_main(cli: Cli) -> Result<ExitCode> {
 }
 
 /// Reads a scene configuration: a bare config, or a `/config` message's `{"scene", "config"}`
-/// (strict: duplicate keys, positional arrays and unknown keys are errors naming the key).
-fn load_config<S: gpm::scene::SceneParams>(path: &Path) -> Result<SceneConfig<S>> {
+/// (strict: duplicate keys, positional arrays and unknown keys are errors naming the key),
+/// and whether it gives `limits.cfl` itself.
+fn load_config<S: gpm::scene::SceneParams>(path: &Path) -> Result<(SceneConfig<S>, bool)> {
     let m = check_input_file(path)?;
     if m.len() > MAX_CONFIG_BYTES {
         bail!(
@@ -384,8 +385,9 @@ fn load_config<S: gpm::scene::SceneParams>(path: &Path) -> Result<SceneConfig<S>
     }
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    gpm::scene::scene_config_from_json::<S>(&text)
-        .with_context(|| format!("invalid {} configuration in {}", S::NAME, path.display()))
+    let cfg = gpm::scene::scene_config_from_json::<S>(&text)
+        .with_context(|| format!("invalid {} configuration in {}", S::NAME, path.display()))?;
+    Ok((cfg, gpm::scene::scene_config_sets_cfl::<S>(&text)))
 }
 
 fn progress_bar(len: u64, quiet: bool, template: &str) -> ProgressBar {
@@ -454,9 +456,9 @@ impl SceneVisitor for RunScene {
     fn visit<const D: usize, S: Scene<D>>(self) -> Result<ExitCode> {
         let RunScene { a } = self;
         let name = S::NAME;
-        let mut cfg: SceneConfig<S> = match &a.config {
+        let (mut cfg, file_cfl): (SceneConfig<S>, bool) = match &a.config {
             Some(p) => load_config::<S>(p)?,
-            None => Default::default(),
+            None => (Default::default(), false),
         };
         override_opt(&mut cfg.re, a.re);
         override_opt(&mut cfg.n, a.n);
@@ -466,7 +468,13 @@ impl SceneVisitor for RunScene {
         override_opt(&mut cfg.weight, a.weight);
         override_opt(&mut cfg.h_over_dx, a.h_ratio);
         override_opt(&mut cfg.motion, a.motion);
-        override_opt(&mut cfg.limits.cfl, a.cfl);
+        // without --cfl or the file's limits.cfl: the step the scene needs in the frame,
+        // Reynolds number and resolution the flags gave (the Lagrangian cavity's is smaller)
+        cfg.limits.cfl = match a.cfl {
+            Some(c) => c,
+            None if file_cfl => cfg.limits.cfl,
+            None => cfg.default_cfl(),
+        };
         if a.initial.is_some() {
             cfg.initial = a.initial.clone();
         }

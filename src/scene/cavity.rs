@@ -41,12 +41,14 @@ pub const LAGRANGIAN_CFL_VISCOUS: f64 = 0.15;
 /// judged steady).
 pub const LAGRANGIAN_CELL_RE: f64 = 4.0;
 
-/// The CFL factor the cavity example gives a Lagrangian cavity of Reynolds number `re` with `n`
-/// particles per side unless `--cfl` is given: [`LAGRANGIAN_CFL_VISCOUS`] up to the cell
+/// The CFL factor a Lagrangian cavity of Reynolds number `re` with `n` particles per side
+/// runs with unless one is given (`--cfl` or `limits.cfl`; the scene's
+/// [`SceneParams::frame_cfl`], so the cavity example, `gpm run cavity` and a configuration
+/// without `limits.cfl` all take it): [`LAGRANGIAN_CFL_VISCOUS`] up to the cell
 /// Reynolds number [`LAGRANGIAN_CELL_RE`], [`LAGRANGIAN_CFL`] above. The error of the Re 100
 /// cavity grows with the step (n = 50, RMS u / v against the extrapolated reference: CFL 0.1
 /// 0.12 % / 0.12 %, 0.15 0.20 % / 0.14 %, 0.2 0.26 % / 0.23 %); the larger step keeps the
-/// n = 50 run within 20 s on two cores. A configuration file sets `limits.cfl` itself.
+/// n = 50 run within 20 s on two cores.
 pub fn lagrangian_cfl(re: f64, n: usize) -> f64 {
     if re / n.max(1) as f64 <= LAGRANGIAN_CELL_RE {
         LAGRANGIAN_CFL_VISCOUS
@@ -323,6 +325,12 @@ impl SceneParams for Cavity {
             shifting: Some(wall_shifting()),
             ..FlowConfig::default()
         }
+    }
+
+    /// [`lagrangian_cfl`] in the Lagrangian frame (the default 0.2 drives a particle through
+    /// a wall: Re 100, n = 100, step 656).
+    fn frame_cfl(flow: &FlowConfig) -> Option<f64> {
+        (flow.motion == crate::flow::Motion::Lagrangian).then(|| lagrangian_cfl(flow.re, flow.n))
     }
 
     fn validate(&self, flow: &FlowConfig) -> Result<(), InputError> {

@@ -425,6 +425,13 @@ pub trait SceneParams: ConfigFields + Clone + fmt::Debug + PartialEq + Default +
     /// Checks the scene's own keys, naming the first bad one (the shared keys are already
     /// checked).
     fn validate(&self, flow: &FlowConfig) -> Result<(), InputError>;
+    /// The CFL factor (`limits.cfl`) the scene needs with the shared keys `flow` (its frame,
+    /// Reynolds number, resolution) when neither the command line nor the configuration gives
+    /// one; `None` (the default): `limits.cfl` of [`default_flow`](Self::default_flow). See
+    /// [`SceneConfig::default_cfl`].
+    fn frame_cfl(_flow: &FlowConfig) -> Option<f64> {
+        None
+    }
 }
 
 /// A scene's full configuration: the shared keys and the scene's own, one flat JSON object
@@ -468,6 +475,15 @@ impl<S: SceneParams> SceneConfig<S> {
     pub fn validate(&self) -> Result<(), InputError> {
         self.flow.validate(S::MIN_N)?;
         self.scene.validate(&self.flow)
+    }
+
+    /// The CFL factor this configuration runs with unless one is given: the scene's
+    /// [`SceneParams::frame_cfl`] for its frame, Reynolds number and resolution (the Lagrangian
+    /// cavity needs less than the default 0.2), else the scene's default `limits.cfl`.
+    /// [`scene_config_from_json`] sets it when the file has no `limits.cfl`; `gpm run` sets it
+    /// after its flags when neither `--cfl` nor the file gives one.
+    pub fn default_cfl(&self) -> f64 {
+        S::frame_cfl(&self.flow).unwrap_or(S::default_flow().limits.cfl)
     }
 
     /// The `/config` message of a recording: `{"scene": NAME, "config": {…}}`, which
@@ -607,15 +623,45 @@ pub fn config_from_value<T: DeserializeOwned + Serialize + Default>(
 
 /// Reads a scene's configuration file: a bare configuration, or a recording's `/config`
 /// message `{"scene": NAME, "config": {…}}` (then `scene` must be `S`'s name), strictly as
-/// [`config_from_json`]. This is what `gpm run <scene> --config FILE` reads.
+/// [`config_from_json`]. This is what `gpm run <scene> --config FILE` reads. A file without
+/// `limits.cfl` gets the configuration's [`SceneConfig::default_cfl`] (e.g. the Lagrangian
+/// cavity's smaller step).
 pub fn scene_config_from_json<S: SceneParams>(text: &str) -> Result<SceneConfig<S>, InputError> {
+    let (v, wrapped) = scene_config_value::<S>(text)?;
+    let sets_cfl = value_sets_cfl(&v);
+    let mut cfg: SceneConfig<S> = config_from_value(v).map_err(|e| match e {
+        InputError::Config { key, reason } if wrapped && key != "(top level)" => {
+            InputError::Config {
+                key: format!("config.{key}"),
+                reason,
+            }
+        }
+        e => e,
+    })?;
+    if !sets_cfl {
+        cfg.flow.limits.cfl = cfg.default_cfl();
+    }
+    Ok(cfg)
+}
+
+/// Whether a scene's configuration file (as [`scene_config_from_json`] reads it) gives
+/// `limits.cfl` itself; `false` for a file that does not parse.
+pub fn scene_config_sets_cfl<S: SceneParams>(text: &str) -> bool {
+    scene_config_value::<S>(text).is_ok_and(|(v, _)| value_sets_cfl(&v))
+}
+
+fn value_sets_cfl(v: &serde_json::Value) -> bool {
+    v.get("limits").and_then(|l| l.get("cfl")).is_some()
+}
+
+/// The configuration object of a file [`scene_config_from_json`] reads, and whether it was
+/// wrapped in a recording's `/config` message (whose `scene` is checked).
+fn scene_config_value<S: SceneParams>(text: &str) -> Result<(serde_json::Value, bool), InputError> {
     let mut v = strict_json(text)?;
-    let mut wrapped = false;
     if let serde_json::Value::Object(m) = &mut v {
         let Some(inner) = m.remove("config") else {
-            return config_from_value(v);
+            return Ok((v, false));
         };
-        wrapped = true;
         if let Some(scene) = m.remove("scene") {
             match scene.as_str() {
                 Some(s) if s.trim().to_ascii_lowercase().replace('-', "_") == S::NAME => {}
@@ -631,17 +677,9 @@ pub fn scene_config_from_json<S: SceneParams>(text: &str) -> Result<SceneConfig<
                 }
             }
         }
-        v = inner;
+        return Ok((inner, true));
     }
-    config_from_value(v).map_err(|e| match e {
-        InputError::Config { key, reason } if wrapped && key != "(top level)" => {
-            InputError::Config {
-                key: format!("config.{key}"),
-                reason,
-            }
-        }
-        e => e,
-    })
+    Ok((v, false))
 }
 
 /// JSON text to a [`serde_json::Value`], rejecting what `serde_json::from_str` lets pass: a
