@@ -2,6 +2,8 @@
 //! (`ThreadComm`): the same solution, connectivity and `c0` as the serial solver, for the
 //! closed cavity (one floating component: pure Neumann) and the periodic vortex.
 
+mod common;
+
 use gpm::boundary::Boundary;
 use gpm::diagnostics::{connectivity, semi_regularity, Region};
 use gpm::distributed::{global_diagnostics, DdPreconditioner, DistributedRun, ThreadComm};
@@ -567,24 +569,8 @@ fn decomposed_runs_stop_the_poisson_solve_at_the_warm_start_factor_as_one_proces
     }
     // each run by the rule, with its own warm-start residual
     let by_the_rule = |reports: &[StepReport], who: &str| {
-        let mut loosened = 0;
-        for (k, r) in reports.iter().enumerate() {
-            let s = &r.solve;
-            let rho = s.initial_rel_residual;
-            let expect = if rho <= 0.1 {
-                rel_tol.max(theta * rho)
-            } else {
-                rel_tol
-            };
-            assert_eq!(s.rel_tol, expect, "{who}, step {k}: ρ = {rho:e}");
-            assert!(
-                s.rel_residual <= 1.5 * s.rel_tol,
-                "{who}, step {k}: residual {:e} against its tolerance {:e}",
-                s.rel_residual,
-                s.rel_tol
-            );
-            loosened += usize::from(s.rel_tol > rel_tol);
-        }
+        let loosened =
+            common::assert_warm_start_rule(reports.iter().map(|r| &r.solve), rel_tol, theta, who);
         assert!(
             loosened >= steps / 3,
             "{who}: loosened on {loosened} of {steps} steps"

@@ -198,6 +198,13 @@ impl SolveParams {
         self.rel_tol.min(self.viscous_rel_tol)
     }
 
+    /// The relative tolerance a Poisson solve by CG stops at when its initial guess leaves
+    /// `rho = ‖b − K φ₀‖₂/‖b‖₂`: `rel_tol`, or `warm_tol rho` where that is larger and the
+    /// warm start predicted most of the right side ([`iterative::stop_tol`]).
+    pub fn poisson_rel_tol(&self, rho: f64) -> f64 {
+        iterative::stop_tol(0.0, self.rel_tol, self.warm_tol, 1.0, rho)
+    }
+
     /// Checks the tolerances `rel_tol`, `abs_tol` and `viscous_rel_tol` (non-negative and
     /// finite), `warm_tol` (in `[0, 1)`), `max_iters`
     /// (at least 1) and `amg_lag_factor` (positive and finite), naming the first bad one by its
@@ -347,13 +354,13 @@ pub struct SolveInfo {
 
 impl SolveInfo {
     /// Takes the counts of the CG run of a scalar solve and the relative tolerance it stopped
-    /// at: `rel_tol`, or `warm_tol ρ` where that is larger ([`iterative::stop_tol`]).
-    pub(crate) fn set_cg(&mut self, r: &iterative::CgInfo, rel_tol: f64, warm_tol: f64) {
+    /// at ([`SolveParams::poisson_rel_tol`]).
+    pub(crate) fn set_cg(&mut self, r: &iterative::CgInfo, params: &SolveParams) {
         self.iters = r.iters;
         self.abs_residual = r.abs_residual;
         self.rel_residual = r.rel_residual;
         self.initial_rel_residual = r.initial_rel_residual();
-        self.rel_tol = iterative::stop_tol(0.0, rel_tol, warm_tol, 1.0, self.initial_rel_residual);
+        self.rel_tol = params.poisson_rel_tol(self.initial_rel_residual);
     }
 
     /// Adds one CG run over a component of a vector solve: iterations summed, residuals the
@@ -717,7 +724,7 @@ impl PoissonSolver {
                 periods: &nl.config().periodic.len,
             })?;
             info.solve_seconds = t.elapsed().as_secs_f64();
-            info.set_cg(&r, params.rel_tol, params.warm_tol);
+            info.set_cg(&r, params);
         } else {
             match kind {
                 SolverKind::Cholesky => {
@@ -808,7 +815,7 @@ impl PoissonSolver {
                         info.solve_seconds = t.elapsed().as_secs_f64();
                         r
                     };
-                    info.set_cg(&r, params.rel_tol, params.warm_tol);
+                    info.set_cg(&r, params);
                 }
             }
         }

@@ -925,13 +925,7 @@ impl<const D: usize> ProjectionStep<D> {
     fn viscous_params(&self, params: &SolveParams) -> SolveParams {
         let mut v = *params;
         if params.viscous_adaptive && self.viscous_rule.loosen > 0.0 {
-            let ceiling = crate::poisson::iterative::stop_tol(
-                0.0,
-                params.rel_tol,
-                params.warm_tol,
-                1.0,
-                self.viscous_rule.rho_last,
-            );
+            let ceiling = params.poisson_rel_tol(self.viscous_rule.rho_last);
             v.viscous_rel_tol = self
                 .viscous_rule
                 .loosen

@@ -399,3 +399,34 @@ pub fn first_projection_input(path: &std::path::Path) -> gpm::record::schema::Pr
     .unwrap();
     first.expect("a recorded projection input")
 }
+
+/// Checks every solve of a run against the warm-start stopping rule
+/// ([`gpm::poisson::SolveParams::warm_tol`]), written out here rather than read from the
+/// library: a solve whose warm start left `ρ ≤ 0.1` of its right side stops at
+/// `max(rel_tol, θ ρ)`, any other at `rel_tol`, and its residual is within 1.5 of that.
+/// Returns the number of solves the rule loosened. `who` names the run in a failure.
+pub fn assert_warm_start_rule<'a>(
+    solves: impl IntoIterator<Item = &'a gpm::poisson::SolveInfo>,
+    rel_tol: f64,
+    theta: f64,
+    who: &str,
+) -> usize {
+    let mut loosened = 0;
+    for (k, s) in solves.into_iter().enumerate() {
+        let rho = s.initial_rel_residual;
+        let expect = if rho <= 0.1 {
+            rel_tol.max(theta * rho)
+        } else {
+            rel_tol
+        };
+        assert_eq!(s.rel_tol, expect, "{who}, step {k}: ρ = {rho:e}");
+        assert!(
+            s.rel_residual <= 1.5 * s.rel_tol,
+            "{who}, step {k}: residual {:e} against its tolerance {:e}",
+            s.rel_residual,
+            s.rel_tol
+        );
+        loosened += usize::from(s.rel_tol > rel_tol);
+    }
+    loosened
+}
