@@ -297,6 +297,9 @@ fn check_steps<B: Boundary<2> + Clone + Sync>(
     let tight = || {
         let mut s = build();
         s.params.projection.solve.rel_tol = 1e-12;
+        if let Some(sh) = s.params.shifting.as_mut() {
+            sh.volume_tol = 1e-12;
+        }
         s
     };
     let mut serial = tight();
@@ -655,6 +658,9 @@ impl gpm::scene::SceneVisitor for CompareDecomposed {
         let steps = self.steps;
         let tight = |sim: &mut Simulation<D, S::Boundary>| {
             sim.params.projection.solve.rel_tol = 1e-12;
+            if let Some(sh) = sim.params.shifting.as_mut() {
+                sh.volume_tol = 1e-12;
+            }
         };
         // stop after `steps` steps (or at the end time)
         let stop = |step: u64| -> gpm::scene::Observed {

@@ -1011,6 +1011,11 @@ fn cavity_at(cfg: &CavityConfig, x: &[[f64; 2]]) -> Simulation<2, Walls<2>> {
 
 /// The volume shift of `sim` with `β` and the RMS relative volume error it was computed from.
 fn volume_shift(sim: &mut Simulation<2, Walls<2>>, beta: f64) -> (Vec<[f64; 2]>, f64) {
+    volume_shift_to(sim, beta, gpm::flow::shifting::VOLUME_TOL)
+}
+
+/// [`volume_shift`] with the solve's relative tolerance `tol`.
+fn volume_shift_to(sim: &mut Simulation<2, Walls<2>>, beta: f64, tol: f64) -> (Vec<[f64; 2]>, f64) {
     let mut out = Vec::new();
     let e = sim
         .projection
@@ -1020,6 +1025,7 @@ fn volume_shift(sim: &mut Simulation<2, Walls<2>>, beta: f64) -> (Vec<[f64; 2]>,
             &sim.boundary,
             &sim.params.projection,
             beta,
+            tol,
             None,
             &mut out,
         )
@@ -1032,6 +1038,24 @@ fn volume_shift(sim: &mut Simulation<2, Walls<2>>, beta: f64) -> (Vec<[f64; 2]>,
 /// (by up to 12 % of the distance) has a volume error; moving the particles by the shift and
 /// measuring again (new neighbours, new volumes) leaves a fraction of it, the particles move
 /// outwards from the centre, and nobody crosses a wall.
+/// Centre and radius of the patch [`compressed_patch`] compresses.
+const PATCH_CENTRE: [f64; 2] = [0.45, 0.55];
+const PATCH_RADIUS: f64 = 0.25;
+
+/// `x0` with the particles within [`PATCH_RADIUS`] of [`PATCH_CENTRE`] moved towards it by up
+/// to 12 % of their distance.
+fn compressed_patch(x0: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let (c, r) = (PATCH_CENTRE, PATCH_RADIUS);
+    x0.iter()
+        .map(|p| {
+            let d = [p[0] - c[0], p[1] - c[1]];
+            let s = d[0].hypot(d[1]) / r;
+            let f = if s < 1.0 { 1.0 - 0.12 * (1.0 - s) } else { 1.0 };
+            [c[0] + f * d[0], c[1] + f * d[1]]
+        })
+        .collect()
+}
+
 #[test]
 fn the_volume_shift_leaves_the_lattice_alone_and_evens_out_a_compressed_patch() {
     let cfg = lagrangian_cavity(24);
@@ -1042,16 +1066,8 @@ fn the_volume_shift_leaves_the_lattice_alone_and_evens_out_a_compressed_patch() 
     assert!(e < 1e-12, "lattice volume error {e:e}");
     assert!(largest < 1e-12 * cfg.dx(), "lattice shift {largest:e}");
 
-    let (c, r) = ([0.45, 0.55], 0.25);
-    let x: Vec<[f64; 2]> = x0
-        .iter()
-        .map(|p| {
-            let d = [p[0] - c[0], p[1] - c[1]];
-            let s = d[0].hypot(d[1]) / r;
-            let f = if s < 1.0 { 1.0 - 0.12 * (1.0 - s) } else { 1.0 };
-            [c[0] + f * d[0], c[1] + f * d[1]]
-        })
-        .collect();
+    let (c, r) = (PATCH_CENTRE, PATCH_RADIUS);
+    let x = compressed_patch(&x0);
     let mut sim = cavity_at(&cfg, &x);
     let (shift, e1) = volume_shift(&mut sim, 1.0);
     assert!(e1 > 1e-3, "the compressed patch has a volume error: {e1:e}");
@@ -1079,6 +1095,42 @@ fn the_volume_shift_leaves_the_lattice_alone_and_evens_out_a_compressed_patch() 
     assert!(
         e2 < 0.6 * e1,
         "one shift left {e2:e} of the volume error {e1:e}"
+    );
+}
+
+/// The volume shift's solve stops at its own tolerance (`Shifting::volume_tol`), not at the
+/// projection's: by CG on the compressed patch, the shift solved to the default 10⁻⁶ differs
+/// from the one solved to 10⁻¹² (the tolerance acts) by at most 10⁻³ of the largest shift, and
+/// a projection tolerance of 10⁻³ leaves the 10⁻¹² one as it is with 10⁻¹⁰.
+#[test]
+fn the_volume_shift_solves_to_its_own_tolerance() {
+    use gpm::poisson::SolverKind;
+    let shift = |projection_tol: f64, tol: f64| {
+        let cfg = lagrangian_cavity(24).with(|c| {
+            c.solve.solver = SolverKind::Cg;
+            c.solve.rel_tol = projection_tol;
+        });
+        let x = compressed_patch(&lattice([0.0; 2], [1.0; 2], cfg.dx()));
+        volume_shift_to(&mut cavity_at(&cfg, &x), 1.0, tol).0
+    };
+    let diff = |a: &[[f64; 2]], b: &[[f64; 2]]| {
+        a.iter()
+            .zip(b)
+            .map(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]))
+            .fold(0.0, f64::max)
+    };
+    let tight = shift(1e-10, 1e-12);
+    let largest = tight.iter().map(|d| d[0].hypot(d[1])).fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    let d = diff(&tight, &shift(1e-3, 1e-12));
+    assert!(
+        d <= 1e-9 * largest,
+        "the projection's tolerance moved it by {d:e}"
+    );
+    let d = diff(&tight, &shift(1e-10, gpm::flow::shifting::VOLUME_TOL));
+    assert!(
+        d > 0.0 && d <= 1e-3 * largest,
+        "the default tolerance moved it by {d:e} of {largest:e}"
     );
 }
 

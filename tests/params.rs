@@ -284,6 +284,13 @@ fn shifting_and_neighbor_config_name_each_bad_value() {
         ..Default::default()
     };
     assert_param(s.validate(), "shifting.repulsion_radius", 0.0);
+    for bad in [0.0, -1e-6, 1.0, f64::NAN, f64::INFINITY] {
+        let s = Shifting {
+            volume_tol: bad,
+            ..Default::default()
+        };
+        assert_param(s.validate(), "shifting.volume_tol", bad);
+    }
     let c = |h: f64, skin: f64| NeighborConfig::<2>::new(Weight::WendlandC2, h, skin).validate();
     assert!(c(0.1, 0.0).is_ok());
     assert_param(c(-0.1, 0.0), "h", -0.1);

@@ -802,9 +802,9 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             // a free surface, nor before the first projection has set the solver up)
             let mut volume_shift = std::mem::take(&mut self.volume_shift);
             volume_shift.clear();
-            if let Some(beta) = sh
-                .map(|s| s.volume)
-                .filter(|&b| b > 0.0 && self.free_surface.is_none() && self.steps > 0)
+            if let Some((beta, tol)) = sh
+                .map(|s| (s.volume, s.volume_tol))
+                .filter(|&(b, _)| b > 0.0 && self.free_surface.is_none() && self.steps > 0)
             {
                 volume_error = Some(self.projection.volume_shift_into(
                     &self.particles,
@@ -812,6 +812,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                     &self.boundary,
                     &self.params.projection,
                     beta,
+                    tol,
                     self.volume_mean,
                     &mut volume_shift,
                 )?);

@@ -1182,7 +1182,8 @@ impl<const D: usize> ProjectionStep<D> {
     /// The volume shift of the Lagrangian frame (`Shifting::volume` of `crate::flow`) into `out`
     /// (every particle; zero off the fluid): `δ_i = −β ∇h χ_i` with `−Δh χ = e` on the fluid
     /// rows, `e_i = ω̄/ω_i − 1` (`ω̄` the mean fluid volume: `mean_volume`, or this
-    /// configuration's when `None`), solved with this step's Poisson solver and tolerance on the
+    /// configuration's when `None`), solved with this step's Poisson solver to the relative
+    /// tolerance `tol` (`Shifting::volume_tol` of `crate::flow`; no warm-start factor) on the
     /// configuration of `nl` (the matrix of the last projection when the configuration is the
     /// same), `χ` continued into the ghosts like a pressure without gravity (evenly: no shift
     /// through a wall). `Σ_i ω_i e_i = 0`, so the Neumann problem is compatible. The divergence
@@ -1200,6 +1201,7 @@ impl<const D: usize> ProjectionStep<D> {
         boundary: &dyn Boundary<D>,
         params: &ProjectionParams<D>,
         beta: f64,
+        tol: f64,
         mean_volume: Option<f64>,
         out: &mut Vec<[f64; D]>,
     ) -> Result<f64, Error> {
@@ -1227,9 +1229,14 @@ impl<const D: usize> ProjectionStep<D> {
         }
         let mut chi = std::mem::take(&mut self.volume_chi);
         chi.resize(n, 0.0);
+        let solve = SolveParams {
+            rel_tol: tol,
+            warm_tol: 0.0,
+            ..params.solve
+        };
         let solved = self
             .solver
-            .solve(nl, vol, role, &self.comps, &e, &mut chi, &params.solve);
+            .solve(nl, vol, role, &self.comps, &e, &mut chi, &solve);
         self.volume_e = e;
         if let Err(err) = solved {
             chi.clear();
