@@ -278,6 +278,10 @@ fn main() -> Result<()> {
         c.n = a.cavity_n;
         c.motion = a.motion;
         c.solve.rel_tol = 1e-12;
+        // the moving cavity's volume shift too (its own tolerance, 1e-6 by default)
+        if let Some(sh) = c.shifting.as_mut() {
+            sh.volume_tol = 1e-12;
+        }
     });
     let (ok_tg, ok_cav) = if a.decomposed {
         (
