@@ -114,7 +114,7 @@ struct Case {
 
 /// The reuse switches of a moving step, each flipped alone against the defaults by the switch
 /// study (`switches.csv`): name, whether it is on by default, what it saves.
-const SWITCHES: [(&str, bool, &str); 12] = [
+const SWITCHES: [(&str, bool, &str); 13] = [
     (
         "skin",
         true,
@@ -154,6 +154,11 @@ const SWITCHES: [(&str, bool, &str); 12] = [
         "keep_pressure_gradient",
         true,
         "trapezoidal term's ∇pⁿ⁺¹ taken with ∇φ in the correction's pass",
+    ),
+    (
+        "fused_shift",
+        true,
+        "shift's Taylor gradients and velocity range taken in the shift's own pass",
     ),
     (
         "pattern_reuse",
@@ -272,7 +277,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
         Some("pattern_keep_pairs") => projection.solve.pattern_keep_pairs = false,
         Some("viscous_adaptive") => projection.solve.viscous_adaptive = false,
         Some("warm_tol") => projection.solve.warm_tol = WARM_TOL,
-        Some("keep_pressure_gradient" | "amg_single_precision") => {}
+        Some("keep_pressure_gradient" | "amg_single_precision" | "fused_shift") => {}
         Some(other) => bail!("unknown switch {other:?}"),
     }
     let moving = c.frame != Frame::Fixed;
@@ -298,6 +303,7 @@ fn periodic_sim<const D: usize>(c: &Case) -> Result<Simulation<D, PeriodicBox<D>
     let mut sim = Simulation::new(p, PeriodicBox { periodic }, config, params)?;
     match c.flip.as_deref() {
         Some("keep_pressure_gradient") => sim.projection.keep_pressure_gradient = false,
+        Some("fused_shift") => sim.fused_shift = false,
         Some("amg_single_precision") => sim.projection.solver.amg.params.single_precision = false,
         _ => {}
     }

@@ -852,6 +852,62 @@ fn the_kept_pressure_gradient_gives_the_same_run() {
     );
 }
 
+/// The shift's Taylor correction with its gradients `∇h u`, `∇h p` and the velocity's range
+/// taken in the shift's own pass over the pairs (`Simulation::fused_shift`, the default; the GPM
+/// operators, whose difference gradients these are) runs to the same bits as with the three
+/// passes of their own: a Lagrangian cavity (walls, so
+/// velocity and pressure ghosts, and the volume shift; to t = 4, 267 steps, for the wall pushes
+/// it sees) and a Lagrangian Taylor–Green vortex (periodic).
+#[test]
+fn the_fused_shift_pass_gives_the_same_run() {
+    fn state<B: Boundary<2>>(sim: &Simulation<2, B>) -> Vec<u64> {
+        let p = &sim.particles;
+        let v = p.x.iter().flatten().chain(p.u.iter().flatten());
+        v.chain(&p.p).map(|x| x.to_bits()).collect()
+    }
+    let cavity = |fused: bool| {
+        let (mut shift, mut pushes) = (0.0f64, 0usize);
+        let run = run_scene(
+            &short_lagrangian_cavity(20, 4.0).with(|c| c.operators = OperatorSet::Gpm),
+            |sim| sim.fused_shift = fused,
+            |rep, _| {
+                shift = shift.max(rep.max_shift);
+                pushes += rep.wall_pushes;
+                Ok(ControlFlow::Continue(()))
+            },
+        )
+        .expect("a short Lagrangian cavity run");
+        assert!(run.sim.steps >= 100, "{} steps", run.sim.steps);
+        assert!(shift > 0.0 && pushes > 0, "shift {shift}, pushes {pushes}");
+        state(&run.sim)
+    };
+    assert!(cavity(true) == cavity(false), "the cavity runs differ");
+    let tg = TaylorGreenConfig::default().with(|c| {
+        c.n = 24;
+        c.motion = Motion::Lagrangian;
+        c.operators = OperatorSet::Gpm;
+        c.t_end = 0.25;
+    });
+    let tg_run = |fused: bool| {
+        let mut shift = 0.0f64;
+        let run = run_scene(
+            &tg,
+            |sim| sim.fused_shift = fused,
+            |rep, _| {
+                shift = shift.max(rep.max_shift);
+                Ok(ControlFlow::Continue(()))
+            },
+        )
+        .expect("a short Lagrangian Taylor–Green run");
+        assert!(run.sim.steps >= 10 && shift > 0.0, "shift {shift}");
+        state(&run.sim)
+    };
+    assert!(
+        tg_run(true) == tg_run(false),
+        "the Taylor–Green runs differ"
+    );
+}
+
 /// The ramped lid (`Wall::ramp`): a ghost across the lid alone carries `2 U S(d/δ) − u`, `S`
 /// the quintic smooth step of the distance `d` to the nearer side wall (written out here), a
 /// corner ghost is the ramp-free mean of the two orders, the implicit solves' affine rule agrees,

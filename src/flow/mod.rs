@@ -286,6 +286,11 @@ pub struct Simulation<const D: usize, B: Boundary<D>> {
     prev_energy: Option<f64>,
     /// Moment pair-weight state: parameters, warm-start multipliers, last report.
     pub pair_weights: crate::pair_weights::MomentWeights<D>,
+    /// Lagrangian frame with shifting and the difference gradients: the shift's Taylor
+    /// correction takes its gradients `∇h u`, `∇h p` and the velocity's range in the shift's
+    /// own pass over the pairs, not in three passes of their own — the same bits (default true;
+    /// off only to measure the saving).
+    pub fused_shift: bool,
     /// Free-surface detection and the full-lattice number density `n₀` it compares with.
     free_surface: Option<(FreeSurface, f64)>,
     /// The largest speed of the moving particles for the Fickian shift's global speed, when
@@ -371,6 +376,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
             plan,
             work: Vec::new(),
             shift_scratch: Default::default(),
+            fused_shift: true,
             stale: false,
             advect_u: Vec::new(),
             material_accel: Vec::new(),
@@ -825,6 +831,7 @@ impl<const D: usize, B: Boundary<D>> Simulation<D, B> {
                 self.projection
                     .least_squares(&self.nl, &p.vol, &p.x, &p.role, ghosts)
             });
+            self.shift_scratch.separate_passes = !self.fused_shift;
             let res = shifting::advance_particles(
                 sh.as_ref(),
                 self.free_surface.is_some(),

@@ -191,6 +191,10 @@ pub(crate) struct ShiftScratch<const D: usize> {
     hp: Vec<[[f64; D]; D]>,
     /// Rows with a ghost neighbour (no second-order term there).
     near_wall: Vec<bool>,
+    /// Take the Taylor correction's difference gradients and velocity range in passes of their
+    /// own (the operators' functions) rather than in the shift's pass over the pairs: the same
+    /// bits, a check of the fused pass.
+    pub(crate) separate_passes: bool,
     /// Per particle and component: the smallest and largest velocity among the particle and
     /// its neighbours within `h` before the move (ghosts at their wall point), the range the
     /// Taylor-corrected velocity is kept in.
@@ -272,19 +276,37 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             .reduce(|| 0.0, f64::max),
         None => 0.0,
     };
+    let correct_fick = sh.is_some_and(|sh| sh.correct);
+    // With the difference gradients (no least-squares operators) the Taylor correction's
+    // gradients `∇h u` and `∇h p` and the velocity's range are taken in the shift's own pass
+    // over each row, the wall part with them: one pass over the pairs instead of four (the
+    // shift, `grad_vec_into`, `grad_diff_into`, `velocity_range`), the same bits.
+    let fused = correct_fick && ls.is_none() && !s.separate_passes;
+    if fused && boundary.has_ghosts() {
+        boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
+    }
+    // the advection displacement Δt u + Δt²/2 a
+    let half_dt2 = 0.5 * dt * dt;
+    let advect = |ui: &[f64; D], i: usize, a: usize| {
+        dt * ui[a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
+    };
     // Fickian part: δx_i = −A h |u_i| Δt ∇C_i,
-    // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r
+    // ∇C_i = Σ_j ω_j (1 + R (w_h(r)/w_h(Δx))^n) ∇_i w_h(r_ij) = −Σ_j ω_j (…) w_h'(r) dx/r;
+    // then the wall part at the advected and shifted position, the pushes counted and the
+    // largest shift taken in the same pass
     s.shift.resize(n, [0.0; D]);
+    s.wall.resize(n, [0.0; D]);
+    s.grad.resize(n, [[0.0; D]; D]);
+    s.gp.resize(n, [0.0; D]);
+    s.range.resize(n, [[0.0; 2]; D]);
+    s.hess.clear();
     let w_dx = kernel.w_h(dx);
-    {
+    let dim = D as f64;
+    let (wall_pushes, max_shift) = {
         let p = &*p;
         let u = &*u;
-        s.shift.par_iter_mut().enumerate().for_each(|(i, s)| {
-            *s = [0.0; D];
-            let Some(sh) = sh else { return };
-            if !moves(&p.role[i]) {
-                return;
-            }
+        // particle `i`'s shift (a moving particle), and with `out` its fused gradients and range
+        let shift_of = |sh: &Shifting, i: usize, out: Option<RowSlots<'_, D>>| -> [f64; D] {
             // ∇C: the Fickian term's direction, and the surface normal of a band particle (the
             // default shifting, pair repulsion alone, reads it only there)
             let is_band = p.role[i] == crate::particles::Role::Dirichlet;
@@ -314,18 +336,26 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             };
             let f = -sh.coefficient * h * speed * dt;
             let mut d: [f64; D] = gc.map(|g| f * g);
-            if sh.repulsion > 0.0 {
-                let rc = sh.repulsion_radius * dx;
-                for k in nl.row(i) {
-                    let r2 = nl.r2(k);
-                    if r2 < rc * rc && r2 > 0.0 {
-                        let r = r2.sqrt();
-                        let c = -sh.repulsion * (rc - r) / r;
-                        for a in 0..D {
-                            d[a] += c * nl.dx()[k][a];
-                        }
-                    }
+            // the pair repulsion, and the fused gradients and range (each summed in the order
+            // of its own pass: `grad_vec_row`, `grad_diff_into`, `velocity_range`)
+            let repel = sh.repulsion > 0.0;
+            let rc = sh.repulsion_radius * dx;
+            let kappa = sh.repulsion;
+            match out {
+                Some((go, gpo, ro)) => {
+                    let (g, gp, range) = if repel {
+                        row_pass::<D, true, true>(nl, p, u, i, rc, kappa, &mut d)
+                    } else {
+                        row_pass::<D, false, true>(nl, p, u, i, rc, kappa, &mut d)
+                    };
+                    *go = g.map(|row| row.map(|v| v * dim));
+                    *gpo = gp.map(|v| dim * v);
+                    *ro = range;
                 }
+                None if repel => {
+                    row_pass::<D, true, false>(nl, p, u, i, rc, kappa, &mut d);
+                }
+                None => {}
             }
             if let Some(v) = volume_shift.get(i) {
                 for a in 0..D {
@@ -347,42 +377,38 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             if m > lim {
                 d = d.map(|v| v * lim / m);
             }
-            *s = d;
-        });
-    }
-    let correct_fick = sh.is_some_and(|sh| sh.correct);
-    // the advection displacement Δt u + Δt²/2 a
-    let half_dt2 = 0.5 * dt * dt;
-    let advect = |ui: &[f64; D], i: usize, a: usize| {
-        dt * ui[a] + accel.get(i).map_or(0.0, |acc| half_dt2 * acc[a])
-    };
-    // wall part, at the advected and Fick-shifted position; the pushes counted and the
-    // largest shift taken in the same pass
-    s.wall.resize(n, [0.0; D]);
-    let (wall_pushes, max_shift) = {
-        let (p, u, shift) = (&*p, &*u, &s.shift);
-        s.wall
+            d
+        };
+        let slots = s
+            .shift
             .par_iter_mut()
+            .zip(s.wall.par_iter_mut())
+            .zip(s.grad.par_iter_mut().zip(s.gp.par_iter_mut()))
+            .zip(s.range.par_iter_mut());
+        slots
             .enumerate()
             .with_min_len(1024)
-            .map(|(i, wall)| {
+            .map(|(i, (((shift, wall), (grad, gp)), range))| {
+                *shift = [0.0; D];
                 *wall = [0.0; D];
-                if moves(&p.role[i]) {
-                    let x: [f64; D] =
-                        std::array::from_fn(|a| p.x[i][a] + advect(&u[i], i, a) + shift[i][a]);
-                    *wall = boundary.wall_margin_push(&x, margin);
+                if !moves(&p.role[i]) {
+                    return (0, 0.0);
                 }
+                if let Some(sh) = sh {
+                    *shift = shift_of(sh, i, fused.then_some((grad, gp, range)));
+                }
+                let x: [f64; D] =
+                    std::array::from_fn(|a| p.x[i][a] + advect(&u[i], i, a) + shift[a]);
+                *wall = boundary.wall_margin_push(&x, margin);
                 let pushed = wall.iter().any(|&v| v != 0.0) as usize;
-                let d: [f64; D] = std::array::from_fn(|a| shift[i][a] + wall[a]);
+                let d: [f64; D] = std::array::from_fn(|a| shift[a] + wall[a]);
                 (pushed, norm2(&d).sqrt())
             })
             .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)))
     };
-    if correct_fick || wall_pushes > 0 {
-        // the gradients at the configuration before the move
-        // Taylor correction of u and p to the shifted position (gradients before the move)
-        s.grad.resize(n, [[0.0; D]; D]);
-        s.gp.resize(n, [0.0; D]);
+    if !fused && (correct_fick || wall_pushes > 0) {
+        // the gradients at the configuration before the move, for the Taylor correction of
+        // u and p to the shifted position
         if boundary.has_ghosts() {
             boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
         }
@@ -395,11 +421,10 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             None => {
                 grad_vec_into(nl, &p.vol, u, &mut s.grad);
                 grad_diff_into(nl, &p.vol, &p.p, &mut s.gp);
-                s.hess.clear();
             }
         }
     }
-    if correct_fick {
+    if correct_fick && !fused {
         velocity_range(nl, &p.role, u, &mut s.range);
     }
     let s = &*s;
@@ -465,6 +490,82 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
         max_shift,
         wall_pushes,
     })
+}
+
+/// One row's difference gradients of `u` and `p` and the range of `u` ([`row_pass`]).
+type RowSums<const D: usize> = ([[f64; D]; D], [f64; D], [[f64; 2]; D]);
+
+/// Where [`advance_particles`]'s fused pass writes one row's [`RowSums`].
+type RowSlots<'a, const D: usize> = (
+    &'a mut [[f64; D]; D],
+    &'a mut [f64; D],
+    &'a mut [[f64; 2]; D],
+);
+
+/// Row `i`'s pass over its pairs in [`advance_particles`]: with `REPEL` the pair repulsion
+/// `−κ (r_c − r)/r (x_j − x_i)` of each pair closer than `r_c` added to `d`; with `FUSED` the
+/// row's difference gradients of `u` and `p` (without their factor `D`) and the range of `u`
+/// (ghosts at their wall point), each summed in the order of its own pass
+/// ([`crate::operators::grad_vec_into`], [`crate::operators::grad_diff_into`],
+/// [`velocity_range`]): the same bits.
+#[inline(always)]
+fn row_pass<const D: usize, const REPEL: bool, const FUSED: bool>(
+    nl: &NeighborList<D>,
+    p: &Particles<D>,
+    u: &[[f64; D]],
+    i: usize,
+    rc: f64,
+    kappa: f64,
+    d: &mut [f64; D],
+) -> RowSums<D> {
+    let row = nl.row(i);
+    let (idx, dxs) = (&nl.indices()[row.clone()], &nl.dx()[row.clone()]);
+    let (ws, wr2s) = (&nl.w()[row.clone()], &nl.wr2()[row]);
+    let (ui, pi) = (u[i], p.p[i]);
+    let mut g = [[0.0; D]; D];
+    let mut gp = [0.0; D];
+    let mut range: [[f64; 2]; D] = std::array::from_fn(|a| [ui[a], ui[a]]);
+    for (((&j, dxk), &w), &wr2) in idx.iter().zip(dxs).zip(ws).zip(wr2s) {
+        if REPEL {
+            let r2 = norm2(dxk);
+            if r2 < rc * rc && r2 > 0.0 {
+                let r = r2.sqrt();
+                let c = -kappa * (rc - r) / r;
+                for a in 0..D {
+                    d[a] += c * dxk[a];
+                }
+            }
+        }
+        if FUSED {
+            let j = j as usize;
+            let uj = u[j];
+            let c = p.vol[j] * wr2;
+            for a in 0..D {
+                let du = c * (uj[a] - ui[a]);
+                for b in 0..D {
+                    g[a][b] += du * dxk[b];
+                }
+            }
+            let cp = p.vol[j] * (p.p[j] - pi) * wr2;
+            for a in 0..D {
+                gp[a] += cp * dxk[a];
+            }
+            if w > 0.0 {
+                let v: [f64; D] = match p.role[j] {
+                    crate::particles::Role::Ghost { source, .. } => {
+                        let s = source as usize;
+                        std::array::from_fn(|a| 0.5 * (uj[a] + u[s][a]))
+                    }
+                    _ => uj,
+                };
+                for a in 0..D {
+                    range[a][0] = range[a][0].min(v[a]);
+                    range[a][1] = range[a][1].max(v[a]);
+                }
+            }
+        }
+    }
+    (g, gp, range)
 }
 
 /// `range[i][a] = [min, max]` of `u_a` over particle `i` and its neighbours within `h`, a
