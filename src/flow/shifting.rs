@@ -296,9 +296,11 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
     // largest shift taken in the same pass
     s.shift.resize(n, [0.0; D]);
     s.wall.resize(n, [0.0; D]);
-    s.grad.resize(n, [[0.0; D]; D]);
-    s.gp.resize(n, [0.0; D]);
-    s.range.resize(n, [[0.0; 2]; D]);
+    if fused {
+        s.grad.resize(n, [[0.0; D]; D]);
+        s.gp.resize(n, [0.0; D]);
+        s.range.resize(n, [[0.0; 2]; D]);
+    }
     s.hess.clear();
     let w_dx = kernel.w_h(dx);
     let dim = D as f64;
@@ -379,36 +381,49 @@ pub(crate) fn advance_particles<const D: usize, B: Boundary<D>>(
             }
             d
         };
-        let slots = s
-            .shift
-            .par_iter_mut()
-            .zip(s.wall.par_iter_mut())
-            .zip(s.grad.par_iter_mut().zip(s.gp.par_iter_mut()))
-            .zip(s.range.par_iter_mut());
-        slots
-            .enumerate()
-            .with_min_len(1024)
-            .map(|(i, (((shift, wall), (grad, gp)), range))| {
-                *shift = [0.0; D];
-                *wall = [0.0; D];
-                if !moves(&p.role[i]) {
-                    return (0, 0.0);
-                }
-                if let Some(sh) = sh {
-                    *shift = shift_of(sh, i, fused.then_some((grad, gp, range)));
-                }
-                let x: [f64; D] =
-                    std::array::from_fn(|a| p.x[i][a] + advect(&u[i], i, a) + shift[a]);
-                *wall = boundary.wall_margin_push(&x, margin);
-                let pushed = wall.iter().any(|&v| v != 0.0) as usize;
-                let d: [f64; D] = std::array::from_fn(|a| shift[a] + wall[a]);
-                (pushed, norm2(&d).sqrt())
-            })
-            .reduce(|| (0, 0.0), |a, b| (a.0 + b.0, a.1.max(b.1)))
+        // one particle: its shift (the fused sums into `slots`), then the wall part; whether
+        // it was pushed and the length of its whole shift
+        let one = |i: usize,
+                   shift: &mut [f64; D],
+                   wall: &mut [f64; D],
+                   slots: Option<RowSlots<'_, D>>| {
+            *shift = [0.0; D];
+            *wall = [0.0; D];
+            if !moves(&p.role[i]) {
+                return (0, 0.0);
+            }
+            if let Some(sh) = sh {
+                *shift = shift_of(sh, i, slots);
+            }
+            let x: [f64; D] = std::array::from_fn(|a| p.x[i][a] + advect(&u[i], i, a) + shift[a]);
+            *wall = boundary.wall_margin_push(&x, margin);
+            let pushed = wall.iter().any(|&v| v != 0.0) as usize;
+            let d: [f64; D] = std::array::from_fn(|a| shift[a] + wall[a]);
+            (pushed, norm2(&d).sqrt())
+        };
+        let add = |a: (usize, f64), b: (usize, f64)| (a.0 + b.0, a.1.max(b.1));
+        let moves_and_shifts = s.shift.par_iter_mut().zip(s.wall.par_iter_mut());
+        if fused {
+            let sums = s.grad.par_iter_mut().zip(s.gp.par_iter_mut());
+            moves_and_shifts
+                .zip(sums.zip(s.range.par_iter_mut()))
+                .enumerate()
+                .with_min_len(1024)
+                .map(|(i, ((shift, wall), ((g, gp), r)))| one(i, shift, wall, Some((g, gp, r))))
+                .reduce(|| (0, 0.0), add)
+        } else {
+            moves_and_shifts
+                .enumerate()
+                .with_min_len(1024)
+                .map(|(i, (shift, wall))| one(i, shift, wall, None))
+                .reduce(|| (0, 0.0), add)
+        }
     };
     if !fused && (correct_fick || wall_pushes > 0) {
         // the gradients at the configuration before the move, for the Taylor correction of
         // u and p to the shifted position
+        s.grad.resize(n, [[0.0; D]; D]);
+        s.gp.resize(n, [0.0; D]);
         if boundary.has_ghosts() {
             boundary.fill_pressure(&p.x, &p.role, &mut p.p, rho_g);
         }
@@ -551,17 +566,7 @@ fn row_pass<const D: usize, const REPEL: bool, const FUSED: bool>(
                 gp[a] += cp * dxk[a];
             }
             if w > 0.0 {
-                let v: [f64; D] = match p.role[j] {
-                    crate::particles::Role::Ghost { source, .. } => {
-                        let s = source as usize;
-                        std::array::from_fn(|a| 0.5 * (uj[a] + u[s][a]))
-                    }
-                    _ => uj,
-                };
-                for a in 0..D {
-                    range[a][0] = range[a][0].min(v[a]);
-                    range[a][1] = range[a][1].max(v[a]);
-                }
+                widen_range(&mut range, &p.role, u, j);
             }
         }
     }
@@ -585,20 +590,31 @@ fn velocity_range<const D: usize>(
             if nl.w()[k] <= 0.0 {
                 continue;
             }
-            let j = nl.indices()[k] as usize;
-            let v: [f64; D] = match role[j] {
-                crate::particles::Role::Ghost { source, .. } => {
-                    let s = source as usize;
-                    std::array::from_fn(|a| 0.5 * (u[j][a] + u[s][a]))
-                }
-                _ => u[j],
-            };
-            for a in 0..D {
-                r[a][0] = r[a][0].min(v[a]);
-                r[a][1] = r[a][1].max(v[a]);
-            }
+            widen_range(r, role, u, nl.indices()[k] as usize);
         }
     });
+}
+
+/// Widens `r` (per component `[min, max]`) by neighbour `j`'s velocity, a ghost's at its wall
+/// point (the mean of its value and its source's): one pair of [`velocity_range`].
+#[inline(always)]
+fn widen_range<const D: usize>(
+    r: &mut [[f64; 2]; D],
+    role: &[crate::particles::Role],
+    u: &[[f64; D]],
+    j: usize,
+) {
+    let v: [f64; D] = match role[j] {
+        crate::particles::Role::Ghost { source, .. } => {
+            let s = source as usize;
+            std::array::from_fn(|a| 0.5 * (u[j][a] + u[s][a]))
+        }
+        _ => u[j],
+    };
+    for a in 0..D {
+        r[a][0] = r[a][0].min(v[a]);
+        r[a][1] = r[a][1].max(v[a]);
+    }
 }
 
 /// The second derivatives of the velocity and the pressure for the Taylor correction: the
